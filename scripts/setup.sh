@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# One-time set-up on a fresh machine: system libraries for headless OpenGL, Python packages,
+# and the `isa` wheel itself (built from this checkout by maturin). Safe to re-run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# Headless rendering: pyrender over EGL (Mesa llvmpipe); importing pyrender loads pyglet,
+# which needs libGL and libXrender even off-screen. OSMesa as a fallback.
+need_apt=()
+for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1 libosmesa6; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
+done
+if [ ${#need_apt[@]} -gt 0 ]; then
+  echo "[setup] apt-get install ${need_apt[*]}"
+  SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_apt[@]}" >/dev/null
+fi
+
+PY=${PYTHON:-python3}
+# pyrender pins PyOpenGL==3.1.0, which breaks OSMesa/EGL on current Mesa: install it without
+# its dependencies and list them here explicitly (see requirements/runtime.txt).
+$PY -m pip install -q --disable-pip-version-check -r requirements/runtime.txt
+$PY -m pip install -q --disable-pip-version-check --no-deps "pyrender==0.1.45"
+if [ "${ISA_SETUP_DEV:-1}" = 1 ]; then
+  $PY -m pip install -q --disable-pip-version-check -r requirements/dev.txt
+fi
+# The package itself: Rust core + PyO3 binding compiled by maturin (release profile).
+$PY -m pip install -q --disable-pip-version-check --no-build-isolation --no-deps -e .
+echo "[setup] done: $($PY -c 'import isa; print("isa", isa.__version__)')"
