@@ -51,9 +51,9 @@ class SizeRange:
 
 #: Real-world size ranges per category (see the module docstring for the sources).
 SIZES: dict[str, SizeRange] = {
-    # Beds: mattress lengths 1.91-2.03 m plus frame/head- and footboards; heights from a bare
+    # Beds: mattress lengths 1.91-2.03 m plus frame, head- and footboard (up to ~2.4 m); heights from a bare
     # platform (~0.35 m) to a tall headboard (~1.4 m).
-    "bed": SizeRange(height=(0.35, 1.40), length=(1.90, 2.30), sources=("ISPA",)),
+    "bed": SizeRange(height=(0.35, 1.40), length=(1.90, 2.40), sources=("ISPA",)),
     # Chairs: seat 0.40-0.51 m, overall 0.75-1.10 m incl. high-backed office chairs; the larger
     # footprint side is 0.42 m (armless dining chair) to 0.75 m (armchair).
     "chair": SizeRange(height=(0.75, 1.10), length=(0.42, 0.75), sources=("PZ", "EN1335")),
