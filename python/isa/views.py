@@ -1,0 +1,130 @@
+"""Viewpoints: look-at camera poses, the paper's 89 training views, and random test views.
+
+A view is a pose (R, t) of the object frame in the OpenCV camera frame (``X_cam = R @ X_obj + t``)
+of an upright camera (no roll unless asked) looking at the object-frame origin from a point of
+the upper hemisphere, at indoor distances (1.5-4 m by default).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from isa.categories import PAPER_VIEWS
+
+GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+@dataclass(frozen=True)
+class Views:
+    """N camera poses: ``R`` (N, 3, 3), ``t`` (N, 3) metres, and the camera centres ``eye`` (N, 3)
+    in the object frame."""
+
+    R: np.ndarray
+    t: np.ndarray
+    eye: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.R)
+
+    def __getitem__(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.R[i], self.t[i]
+
+
+def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), roll: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Pose (R, t) of a camera at ``eye`` looking at ``target`` (object frame), image "up" along ``up``.
+
+    ``roll`` (radians) turns the camera about its optical axis. When the viewing direction is
+    parallel to ``up`` (looking straight down), the object's +y is used as image up instead.
+    """
+    eye, target, up = (np.asarray(a, dtype=float) for a in (eye, target, up))
+    z = target - eye
+    n = np.linalg.norm(z)
+    if n == 0:
+        raise ValueError("look_at: eye and target coincide")
+    z /= n
+    y = -(up - (up @ z) * z)  # OpenCV y points down in the image
+    if np.linalg.norm(y) < 1e-9:
+        alt = np.array([0.0, 1.0, 0.0])
+        y = -(alt - (alt @ z) * z)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    if roll:
+        c, s = np.cos(roll), np.sin(roll)
+        x, y = c * x + s * y, -s * x + c * y
+    R = np.stack([x, y, z])  # rows: camera axes in object coordinates
+    return R, -R @ eye
+
+
+def hemisphere_directions(n: int, elevation_deg: tuple[float, float] = (10.0, 80.0), azimuth0: float = 0.0) -> np.ndarray:
+    """``n`` unit vectors spread evenly (Fibonacci lattice, equal area) over a band of the upper
+    hemisphere between the two elevations (degrees above the horizon); ``azimuth0`` rotates them."""
+    lo, hi = np.radians(elevation_deg)
+    if not (0 <= lo < hi <= np.pi / 2):
+        raise ValueError(f"elevation_deg must satisfy 0 <= lo < hi <= 90, got {elevation_deg}")
+    i = np.arange(n) + 0.5
+    # Equal-area: sin(elevation) uniform in [sin lo, sin hi].
+    s = np.sin(lo) + (np.sin(hi) - np.sin(lo)) * i / n
+    el = np.arcsin(s)
+    az = azimuth0 + GOLDEN_ANGLE * i
+    return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
+
+
+def _views_from(dirs: np.ndarray, dist: np.ndarray, target, roll: np.ndarray) -> Views:
+    eye = np.asarray(target, float) + dirs * dist[:, None]
+    Rs, ts = zip(*(look_at(e, target, roll=r) for e, r in zip(eye, roll)))
+    return Views(np.array(Rs), np.array(ts), eye)
+
+
+def training_views(
+    n: int = PAPER_VIEWS,
+    seed: int = 0,
+    distance: tuple[float, float] = (1.5, 4.0),
+    elevation_deg: tuple[float, float] = (10.0, 80.0),
+    roll_deg: float = 0.0,
+    target=(0.0, 0.0, 0.0),
+) -> Views:
+    """The training viewpoints: ``n`` (89, as in the paper) directions evenly over the hemisphere
+    band, a seeded azimuth offset, distances uniform in ``distance`` and rolls uniform in
+    +-``roll_deg``, all reproducible from ``seed``."""
+    rng = np.random.default_rng(seed)
+    dirs = hemisphere_directions(n, elevation_deg, azimuth0=rng.uniform(0, 2 * np.pi))
+    dist = rng.uniform(*distance, size=n)
+    roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
+    return _views_from(dirs, dist, target, roll)
+
+
+def sample_test_views(
+    n: int,
+    seed: int = 1,
+    exclude: Views | None = None,
+    min_separation_deg: float = 3.0,
+    distance: tuple[float, float] = (1.5, 4.0),
+    elevation_deg: tuple[float, float] = (10.0, 80.0),
+    roll_deg: float = 0.0,
+    target=(0.0, 0.0, 0.0),
+) -> Views:
+    """``n`` random viewpoints (uniform over the hemisphere band's area), each at least
+    ``min_separation_deg`` away in direction from every view of ``exclude`` (the training set), so
+    that no test view is a training view."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.sin(np.radians(elevation_deg))
+    ex = None
+    if exclude is not None and len(exclude):
+        ex = exclude.eye - np.asarray(target, float)
+        ex /= np.linalg.norm(ex, axis=1, keepdims=True)
+    cos_min = np.cos(np.radians(min_separation_deg))
+    dirs: list[np.ndarray] = []
+    for _ in range(1000 * max(n, 1)):
+        if len(dirs) == n:
+            break
+        el, az = np.arcsin(rng.uniform(lo, hi)), rng.uniform(0, 2 * np.pi)
+        d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        if ex is None or np.max(ex @ d) < cos_min:
+            dirs.append(d)
+    if len(dirs) < n:
+        raise ValueError(f"sample_test_views: could not place {n} views {min_separation_deg} deg away from the training views")
+    dist = rng.uniform(*distance, size=n)
+    roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
+    return _views_from(np.array(dirs).reshape(-1, 3), dist, target, roll)
