@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -189,7 +190,7 @@ class SceneWriter:
 
     JSON files are flushed every ``flush_every`` frames and on :meth:`close` (also when used as a
     context manager), atomically; a crash loses at most the unflushed frames, which are simply
-    rendered again on resume.
+    rendered again on resume. :meth:`write_frame` may be called from several threads.
     """
 
     def __init__(self, root: str | Path, split: str, scene_id: int, depth_scale: float = 1.0, flush_every: int = 16):
@@ -203,6 +204,7 @@ class SceneWriter:
         self.gt = read_json(self.dir / "scene_gt.json") if (self.dir / "scene_gt.json").is_file() else {}
         self.gt_info = read_json(self.dir / "scene_gt_info.json") if (self.dir / "scene_gt_info.json").is_file() else {}
         self._pending = 0
+        self._lock = threading.Lock()
 
     def depth_path(self, im_id: int) -> Path:
         return self.dir / "depth" / f"{im_id:06d}.png"
@@ -221,24 +223,30 @@ class SceneWriter:
         _write_png(self.depth_path(im_id), depth_to_png(depth_m, self.depth_scale))
         _write_png(self.mask_path(im_id), mask.astype(np.uint8) * 255)
         k = str(im_id)
-        self.camera[k] = {"cam_K": [float(x) for x in intrinsics.K.reshape(-1)], "depth_scale": self.depth_scale,
-                          "width": int(intrinsics.width), "height": int(intrinsics.height)}
-        self.gt[k] = [{
+        n = int(mask.sum())
+        bb = _bbox(mask)
+        cam = {"cam_K": [float(x) for x in intrinsics.K.reshape(-1)], "depth_scale": self.depth_scale,
+               "width": int(intrinsics.width), "height": int(intrinsics.height)}
+        gt = [{
             "cam_R_m2c": [float(x) for x in np.asarray(R, dtype=float).reshape(-1)],
             "cam_t_m2c": [float(x) * 1000.0 for x in np.asarray(t_m, dtype=float).reshape(-1)],
             "obj_id": int(obj_id),
         }]
-        n = int(mask.sum())
-        bb = _bbox(mask)
         # Single-object, clutter-free frames: everything rendered is visible.
-        self.gt_info[k] = [{"bbox_obj": bb, "bbox_visib": bb, "px_count_all": n, "px_count_valid": n,
-                            "px_count_visib": n, "visib_fract": 1.0 if n else 0.0}]
-        self._pending += 1
-        if self._pending >= self.flush_every:
-            self.flush()
+        info = [{"bbox_obj": bb, "bbox_visib": bb, "px_count_all": n, "px_count_valid": n,
+                 "px_count_visib": n, "visib_fract": 1.0 if n else 0.0}]
+        with self._lock:
+            self.camera[k], self.gt[k], self.gt_info[k] = cam, gt, info
+            self._pending += 1
+            if self._pending >= self.flush_every:
+                self._flush_locked()
 
     def flush(self) -> None:
         """Write the JSON files now (atomically)."""
+        with self._lock:
+            self._flush_locked()
+
+    def _flush_locked(self) -> None:
         order = lambda d: {k: d[k] for k in sorted(d, key=int)}  # noqa: E731
         write_json(self.dir / "scene_camera.json", order(self.camera))
         write_json(self.dir / "scene_gt_info.json", order(self.gt_info))
@@ -247,6 +255,7 @@ class SceneWriter:
         self._pending = 0
 
     def close(self) -> None:
+        """Flush what is pending (the writer holds no open files)."""
         if self._pending:
             self.flush()
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS
 
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
@@ -71,10 +72,36 @@ def hemisphere_directions(n: int, elevation_deg: tuple[float, float] = (10.0, 80
     return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
 
 
-def _views_from(dirs: np.ndarray, dist: np.ndarray, target, roll: np.ndarray) -> Views:
-    eye = np.asarray(target, float) + dirs * dist[:, None]
-    Rs, ts = zip(*(look_at(e, target, roll=r) for e, r in zip(eye, roll)))
-    return Views(np.array(Rs), np.array(ts), eye)
+def fit_distance(R: np.ndarray, points, target, intrinsics: Intrinsics = KINECT_V1, margin_px: float = 8.0, znear: float = 0.1) -> float:
+    """Smallest distance from ``target`` along the optical axis of a camera with rotation ``R``
+    (looking at ``target``) at which every point of ``points`` (object frame) projects inside the
+    image with ``margin_px`` to spare and lies ``znear`` in front of the camera.
+
+    With the camera at distance d, a point's camera coordinates are R (p - target) + (0, 0, d), so
+    each image bound gives d >= f |x| / room - z in closed form.
+    """
+    K = intrinsics
+    X = (np.asarray(points, float) - np.asarray(target, float)) @ np.asarray(R).T
+    room_u = np.where(X[:, 0] > 0, K.width - 1 - margin_px - K.cx, K.cx - margin_px)
+    room_v = np.where(X[:, 1] > 0, K.height - 1 - margin_px - K.cy, K.cy - margin_px)
+    if np.any(room_u <= 0) or np.any(room_v <= 0):
+        raise ValueError(f"fit_distance: margin {margin_px} px leaves no room in a {K.width}x{K.height} image")
+    d = np.concatenate([K.fx * np.abs(X[:, 0]) / room_u - X[:, 2], K.fy * np.abs(X[:, 1]) / room_v - X[:, 2], znear - X[:, 2]])
+    return float(d.max())
+
+
+def _views_from(dirs: np.ndarray, dist: np.ndarray, target, roll: np.ndarray, fit_points=None, intrinsics: Intrinsics = KINECT_V1) -> Views:
+    target = np.asarray(target, float)
+    Rs, ts, eyes = [], [], []
+    for d, r, dirn in zip(dist, roll, dirs):
+        R, _ = look_at(target + dirn, target, roll=r)  # the rotation does not depend on the distance
+        if fit_points is not None:
+            d = max(d, fit_distance(R, fit_points, target, intrinsics))
+        eye = target + dirn * d
+        Rs.append(R)
+        ts.append(-R @ eye)
+        eyes.append(eye)
+    return Views(np.array(Rs), np.array(ts), np.array(eyes))
 
 
 def training_views(
@@ -84,15 +111,22 @@ def training_views(
     elevation_deg: tuple[float, float] = (10.0, 80.0),
     roll_deg: float = 0.0,
     target=(0.0, 0.0, 0.0),
+    fit_points=None,
+    intrinsics: Intrinsics = KINECT_V1,
 ) -> Views:
     """The training viewpoints: ``n`` (89, as in the paper) directions evenly over the hemisphere
     band, a seeded azimuth offset, distances uniform in ``distance`` and rolls uniform in
-    +-``roll_deg``, all reproducible from ``seed``."""
+    +-``roll_deg``, all reproducible from ``seed``.
+
+    With ``fit_points`` (e.g. the mesh's convex-hull vertices) a view is moved back, when needed,
+    until those points are all inside the ``intrinsics`` image (:func:`fit_distance`): large
+    objects such as beds then keep whole in view.
+    """
     rng = np.random.default_rng(seed)
     dirs = hemisphere_directions(n, elevation_deg, azimuth0=rng.uniform(0, 2 * np.pi))
     dist = rng.uniform(*distance, size=n)
     roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
-    return _views_from(dirs, dist, target, roll)
+    return _views_from(dirs, dist, target, roll, fit_points, intrinsics)
 
 
 def sample_test_views(
@@ -104,10 +138,12 @@ def sample_test_views(
     elevation_deg: tuple[float, float] = (10.0, 80.0),
     roll_deg: float = 0.0,
     target=(0.0, 0.0, 0.0),
+    fit_points=None,
+    intrinsics: Intrinsics = KINECT_V1,
 ) -> Views:
     """``n`` random viewpoints (uniform over the hemisphere band's area), each at least
     ``min_separation_deg`` away in direction from every view of ``exclude`` (the training set), so
-    that no test view is a training view."""
+    that no test view is a training view. ``fit_points``/``intrinsics`` as in :func:`training_views`."""
     rng = np.random.default_rng(seed)
     lo, hi = np.sin(np.radians(elevation_deg))
     ex = None
@@ -127,4 +163,4 @@ def sample_test_views(
         raise ValueError(f"sample_test_views: could not place {n} views {min_separation_deg} deg away from the training views")
     dist = rng.uniform(*distance, size=n)
     roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
-    return _views_from(np.array(dirs).reshape(-1, 3), dist, target, roll)
+    return _views_from(np.array(dirs).reshape(-1, 3), dist, target, roll, fit_points, intrinsics)
