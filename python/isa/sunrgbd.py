@@ -185,16 +185,21 @@ def _polygon_box(obj: dict, index: int, path: Path) -> Box3D:
     poly = obj["polygon"][0]
     if not isinstance(poly, dict):
         raise DataError(f"{path}: object {index} ({name}): polygon entry is {poly!r}, not an object")
+    missing = [k for k in ("X", "Z", "Ymin", "Ymax") if k not in poly]
+    if missing:
+        raise DataError(f"{path}: object {index} ({name}): polygon lacks {', '.join(missing)}")
+    nulls = [k for k in ("X", "Z", "Ymin", "Ymax")
+             if poly[k] is None or (isinstance(poly[k], list) and any(v is None for v in poly[k]))]
+    if nulls:
+        raise DataError(f"{path}: object {index} ({name}): null polygon coordinates in {', '.join(nulls)}")
     try:
         X = np.array(poly["X"], dtype=float).reshape(-1)
         Z = np.array(poly["Z"], dtype=float).reshape(-1)
         ymin, ymax = float(poly["Ymin"]), float(poly["Ymax"])
-    except KeyError as exc:
-        raise DataError(f"{path}: object {index} ({name}): polygon lacks {exc}") from None
     except (TypeError, ValueError):
         raise DataError(
-            f"{path}: object {index} ({name}): null or non-numeric polygon coordinates "
-            f"(X={poly.get('X')!r}, Z={poly.get('Z')!r}, Ymin={poly.get('Ymin')!r}, Ymax={poly.get('Ymax')!r})"
+            f"{path}: object {index} ({name}): non-numeric polygon coordinates "
+            f"(X={poly['X']!r}, Z={poly['Z']!r}, Ymin={poly['Ymin']!r}, Ymax={poly['Ymax']!r})"
         ) from None
     if X.shape != Z.shape or X.size < 3 or not np.all(np.isfinite(np.r_[X, Z, ymin, ymax])):
         raise DataError(f"{path}: object {index} ({name}): footprint needs >= 3 finite (X, Z) corners, got {X.size}/{Z.size}")
@@ -419,8 +424,10 @@ def _image_size(jpg: Path, K: np.ndarray, ui: np.ndarray, vi: np.ndarray) -> tup
                 return im.size
         except OSError as exc:
             raise DataError(f"{jpg}: cannot read the image ({exc})") from None
-    w = max(int(ui.max()) + 1 if ui.size else 0, int(math.ceil(2 * (K[0, 2] - 1))))
-    h = max(int(vi.max()) + 1 if vi.size else 0, int(math.ceil(2 * (K[1, 2] - 1))))
+    # Without the image, guess a principal point at the image centre, (W - 1) / 2 in 0-based
+    # pixels, and never crop a point.
+    w = max(int(ui.max()) + 1 if ui.size else 0, int(round(2 * (K[0, 2] - 1) + 1)))
+    h = max(int(vi.max()) + 1 if vi.size else 0, int(round(2 * (K[1, 2] - 1) + 1)))
     return w, h
 
 
