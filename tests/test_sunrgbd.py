@@ -177,7 +177,7 @@ def test_processed_real_frame_reprojects_to_the_cloud(shared_data):
     assert 1.0 < valid.min() and valid.max() <= 8.0 + 1e-4  # SUN clips depth at 8 m
     # MATLAB wrote the valid pixels column by column: pixel k (column-major) is point k.
     X = f.intrinsics.backproject(f.depth).transpose(1, 0, 2)[(f.depth > 0).T]
-    err = np.linalg.norm(X @ f.R_gravity.T - cloud, axis=1)
+    err = np.linalg.norm(np.einsum("ij,nj->ni", f.R_gravity, X) - cloud, axis=1)
     assert err.max() < 1e-4  # measured 2.5e-5 m: the calib rounds Rtilt to 5 digits
     assert floor_tilt_deg(f.points_upright()) < 3.0
     assert [b.category for b in f.boxes] == ["bed", "night_stand", "ottoman", "dresser_mirror", "dresser", "lamp"]

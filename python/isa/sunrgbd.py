@@ -77,7 +77,12 @@ _MAX_FAR_FRACTION = 0.05
 
 @dataclass(frozen=True, eq=False)
 class SceneFrame:
-    """One real depth frame with its calibration and ground truth (see the module docstring)."""
+    """One real depth frame with its calibration and ground truth (see the module docstring).
+
+    ``name``: the frame folder's name or the processed frame id; ``depth`` (H, W) float32 metres,
+    0 = missing; ``intrinsics`` 0-based; ``R_gravity`` (3, 3) with ``X_up = R_gravity @ X_cam``;
+    ``boxes`` ground-truth :class:`Box3D` in the upright frame; ``source`` the folder or .mat read.
+    """
 
     name: str
     depth: np.ndarray
@@ -92,7 +97,8 @@ class SceneFrame:
 
     def points_upright(self) -> np.ndarray:
         """Upright-frame points (N, 3) of the valid pixels, row-major pixel order."""
-        return self.points_camera() @ self.R_gravity.T
+        # einsum, not matmul: a (N, 3) @ (3, 3) BLAS call is slow on a busy machine.
+        return np.einsum("ij,nj->ni", self.R_gravity, self.points_camera())
 
     def boxes_of(self, category: str) -> list[Box3D]:
         return [b for b in self.boxes if b.category == category]
@@ -273,7 +279,9 @@ def _read_annotation(path: Path) -> tuple[Box3D, ...]:
 def read_native(folder: str | Path, filled: bool = False, annotations: bool = True) -> SceneFrame:
     """Read one frame folder of the native SUN RGB-D layout (e.g. ``kv1/NYUdata/NYU0001``).
 
-    ``filled``: read ``depth_bfx`` (SUN's hole-filled depth) instead of the raw ``depth``.
+    ``filled``: read ``depth_bfx`` (SUN's hole-filled depth) instead of the raw ``depth`` (the
+    processed VoteNet layout is made from the raw one: its clouds keep the holes). Depth is not
+    clipped; SUN's toolbox clips it at 8 m when it builds point clouds.
     ``annotations``: read ``annotation3Dfinal/index.json`` (required then); False gives no boxes.
     Raises :class:`DataError` naming the file for anything missing or malformed.
     """
@@ -388,9 +396,9 @@ def read_processed(root: str | Path, index: int | str) -> SceneFrame:
 
     mat_path = root / "depth" / f"{fid}.mat"
     pts = _read_points(mat_path)[:, :3].astype(np.float64)
-    # Solve rather than transpose: the rounded Rtilt is not exactly orthogonal, and the same
+    # Invert rather than transpose: the rounded Rtilt is not exactly orthogonal, and the same
     # matrix must be used both ways for the reconstruction to reproduce the cloud.
-    cam = np.linalg.solve(R_gravity, pts.T).T
+    cam = np.einsum("ij,nj->ni", np.linalg.inv(R_gravity), pts)
     if np.any(cam[:, 2] <= 0):
         raise DataError(f"{mat_path}: {int(np.sum(cam[:, 2] <= 0))} points behind the camera (wrong Rtilt?)")
     u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2] - 1.0  # 1-based MATLAB pixels -> 0-based
