@@ -58,8 +58,8 @@ SIZES: dict[str, SizeRange] = {
     # footprint side is 0.42 m (armless dining chair) to 0.75 m (armchair).
     "chair": SizeRange(height=(0.75, 1.10), length=(0.42, 0.75), sources=("PZ", "EN1335")),
     # Tables: coffee tables (0.38-0.46 m) to dining tables and desks (0.72-0.78 m); tops from a
-    # 0.5 m side table to a 2.2 m dining table.
-    "table": SizeRange(height=(0.38, 0.80), length=(0.50, 2.20), sources=("PZ", "EN527")),
+    # 0.45 m side table to a 2.2 m dining table.
+    "table": SizeRange(height=(0.38, 0.80), length=(0.45, 2.20), sources=("PZ", "EN527")),
     # Toilets: close-coupled two-piece toilets, rim 0.37-0.48 m, overall 0.65-0.90 m tall,
     # 0.60-0.80 m deep.
     "toilet": SizeRange(height=(0.65, 0.90), length=(0.60, 0.80), sources=("ADA", "ASME")),

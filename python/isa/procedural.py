@@ -166,7 +166,9 @@ def _tilted_box(centre, extents, tilt: float) -> trimesh.Trimesh:
 
 
 def _strut(p0, p1, r0: float, r1: float | None = None, square: bool = False, k: int = 12) -> trimesh.Trimesh:
-    """Bar from p0 to p1: round (radius r0 -> r1) or square (half-width r0 -> r1, sides along x/y)."""
+    """Bar from p0 to p1: round (radius r0 -> r1) or square (half-width r0 -> r1, sides along x/y).
+
+    Mostly vertical bars get level (horizontal) end faces at p0's and p1's heights."""
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     r1 = r0 if r1 is None else r1
     ax = (p1 - p0) / np.linalg.norm(p1 - p0)
@@ -179,7 +181,10 @@ def _strut(p0, p1, r0: float, r1: float | None = None, square: bool = False, k: 
     else:
         t, scale = np.linspace(0, 2 * np.pi, k, endpoint=False), 1.0
     dirs = np.cos(t)[:, None] * u + np.sin(t)[:, None] * v
-    return _loft([p0 + scale * r0 * dirs, p1 + scale * r1 * dirs])
+    a, b = p0 + scale * r0 * dirs, p1 + scale * r1 * dirs
+    if abs(ax[2]) > 0.5:  # mostly vertical (legs, posts): cut the ends level, like real legs on a floor
+        a[:, 2], b[:, 2] = p0[2], p1[2]
+    return _loft([a, b])
 
 
 def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -198,7 +203,7 @@ def _chair(rng: np.random.Generator):
         "seat_depth": _u(rng, 0.38, 0.50),
         "seat_thickness": _u(rng, 0.02, 0.08),
         "seat_power": float(rng.choice([2.5, 4.0, 8.0, 20.0])),
-        "back_height": _u(rng, 0.30, 0.58),  # above the seat: 0.72-1.09 m overall
+        "overall_height": _u(rng, 0.77, 1.05),  # [PZ]: 76-107 cm
         "back_tilt_deg": _u(rng, 0.0, 16.0),
         "back_style": str(rng.choice(["panel", "slats", "rails"])),
         "leg_style": str(rng.choice(["square", "round", "tapered", "splayed", "sled"])),
@@ -209,6 +214,7 @@ def _chair(rng: np.random.Generator):
     }
     H, W, D, T = p["seat_height"], p["seat_width"], p["seat_depth"], p["seat_thickness"]
     lr, tilt = p["leg_radius"], np.radians(p["back_tilt_deg"])
+    p["back_height"] = (p["overall_height"] - H) / np.cos(tilt)  # along the leaning back
     parts = [_slab((0, 0), W / 2, D / 2, H - T, H, p["seat_power"])]
     # Leg tops inside the (possibly rounded) seat outline.
     fx = min(1 - (p["leg_inset"] + lr) / (W / 2), 0.45 ** (1 / p["seat_power"]))
@@ -296,7 +302,7 @@ def _bed(rng: np.random.Generator):
         "frame_margin": _u(rng, 0.01, 0.08),
         "frame_top": _u(rng, 0.18, 0.45),
         "base": str(rng.choice(["legs", "platform"])),
-        "headboard_height": _u(rng, 0.20, 0.85),  # above the mattress top
+        "headboard_height": _u(rng, 0.20, 0.80),  # above the mattress top (capped below)
         "headboard_style": str(rng.choice(["panel", "posts", "slats"])),
         "footboard": str(rng.choice(["none", "low", "high"], p=[0.5, 0.3, 0.2])),
         "pillows": int(rng.integers(0, 3)),
@@ -326,6 +332,7 @@ def _bed(rng: np.random.Generator):
         if plinth > 0:
             parts.append(_box([-Wf / 2 + inset, -Lf / 2 + inset, 0], [Wf / 2 - inset, Lf / 2 - inset, plinth + 0.001]))
         floor = {(sx, sy): np.array([sx * (Wf / 2 - inset), sy * (Lf / 2 - inset), 0.0]) for sx in (-1, 1) for sy in (-1, 1)}
+    p["headboard_height"] = min(p["headboard_height"], 1.38 - zm)  # beds stay under ~1.4 m [SIZES]
     zh = zm + p["headboard_height"]
     hw = Wf / 2 + _u(rng, 0.0, 0.05)
     post_r = _u(rng, 0.03, 0.05)
@@ -444,11 +451,13 @@ def _toilet(rng: np.random.Generator):
         "seat": str(rng.choice(["lid_down", "seat_only", "lid_up", "none"], p=[0.35, 0.3, 0.25, 0.1])),
     }
     zr, Wb = p["rim_height"], p["bowl_width"]
-    Lb = _u(rng, 0.44, 0.48) if p["bowl"] == "round" else _u(rng, 0.50, 0.56)
+    Lb = _u(rng, 0.44, 0.49) if p["bowl"] == "round" else _u(rng, 0.50, 0.57)
     Dt, Wt, ztt = p["tank_depth"], p["tank_width"], p["tank_top"]
-    y_wall = 0.0
-    yt = y_wall - 0.02 - Dt / 2  # tank centre, 2 cm off the wall
-    yc = yt - Dt / 2 - Lb / 2 + _u(rng, 0.06, 0.12)  # bowl centre; its back runs under the tank
+    # Tank back to bowl front [ASME]: ~0.62-0.70 m for round bowls, ~0.68-0.78 m for elongated.
+    depth = _u(rng, 0.62, 0.70) if p["bowl"] == "round" else _u(rng, 0.68, 0.78)
+    yt = -Dt / 2  # tank centre; its back (towards the wall) is at y = 0
+    yc = -depth + Lb / 2  # bowl centre; the bowl's back runs under the tank when they overlap
+    p["depth"] = depth
     rx, ry = Wb / 2, Lb / 2
     foot = _u(rng, 0.45, 0.65) if p["base"] == "classic" else _u(rng, 0.85, 0.95)
     fpow = 2.0 if p["base"] == "classic" else 3.0
@@ -487,7 +496,7 @@ def _toilet(rng: np.random.Generator):
         parts.append(_slab((0, yc - 0.005), rx * 0.98, ry * 0.98, zr + 0.002, zr + 0.045, 2.0, k))
     if p["seat"] == "lid_up":  # lid standing against the tank front
         yl = yt - Dt / 2 - 0.03
-        lid = _slab((0, 0), rx * 0.95, 0.012, 0, 2 * ry * 0.95, 2.0, k)
+        lid = _slab((0, 0), rx * 0.95, 0.012, 0, min(2 * ry * 0.95, ztt + 0.05 - zr - 0.03), 2.0, k)
         lid.apply_transform(trimesh.transformations.rotation_matrix(-0.08, [1, 0, 0]))
         lid.apply_translation([0, yl, zr + 0.03])
         parts.append(lid)
