@@ -1,0 +1,1127 @@
+//! Vote aggregation and mode finding: the last step of inference (paper Sec. 3.4, Eq. 12-13).
+//!
+//! Every part of a depth image, passed down every tree, ends in leaves that vote for the SSC
+//! position (a 3D point in the camera frame, metres) and the object's rotation (a unit
+//! quaternion `w, x, y, z`, sign-free: `q` and `-q` are the same rotation), each vote with a
+//! weight (e.g. `1 / |F|` per tree, Eq. 13). This module is independent of how the votes are
+//! produced: [`find_modes`] takes a flat slice of [`PoseVote`]s and returns ranked [`Hypothesis`]es.
+//!
+//! # Algorithm
+//! Kernel density of the votes, a product of a biweight kernel in position (radius
+//! [`VoteParams::position_bandwidth`] `h`) and a biweight kernel on SO(3) (geodesic radius
+//! [`VoteParams::rotation_bandwidth`]), and its modes:
+//! 1. **Grid**: votes are hashed into cubic cells of side `h`; each cell keeps its weight and
+//!    weighted centroid, and the votes are reordered so those of one cell are contiguous.
+//! 2. **Position mean-shift**: the [`VoteParams::max_seeds`] heaviest cells seed a mean-shift on
+//!    cell centroids (27 neighbour cells cover the kernel), then a refinement on the raw votes
+//!    until the shift is below `1e-4 h`. Seeds run in parallel (rayon), results in seed order.
+//! 3. **Non-maximum suppression** on position, by position density, with radius
+//!    `max(nms_radius, h / 4)`.
+//! 4. **Rotation mode** among the votes within `h` of each position mode, each weighted by its
+//!    position kernel: the densest of a strided subsample of candidate votes (a medoid-like start,
+//!    robust to outliers), then mean-shift on the sphere of quaternions with every vote's sign
+//!    aligned to the current estimate (the weighted chordal mean). Optional further rotation modes
+//!    per position ([`VoteParams::rotations_per_position`]) for symmetric objects.
+//! 5. **Ranking** by the joint density at the mode ([`Hypothesis::score`], the unnormalised
+//!    `p(Δx, θ | I)` of Eq. 13), ties broken deterministically; the first
+//!    [`VoteParams::max_hypotheses`] are returned.
+//!
+//! Everything is deterministic: float reductions run in a fixed order, parallel work is per
+//! seed/mode and collected in order, so results do not depend on the number of threads.
+
+use crate::error::{IsaError, Result};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// One vote: where the SSC is (camera frame, metres), the object's rotation, and a weight.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[repr(C)]
+pub struct PoseVote {
+    /// SSC position `t` in the camera frame (metres): `X_cam = R X_obj + t`.
+    pub position: [f32; 3],
+    /// Rotation `R` as a quaternion `(w, x, y, z)`; need not be unit (normalised here), sign-free.
+    pub rotation: [f32; 4],
+    /// Non-negative weight; votes with weight 0 are ignored.
+    pub weight: f32,
+}
+
+/// Parameters of [`find_modes`]. Defaults suit furniture-sized objects (0.5-2 m) at 1-5 m.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VoteParams {
+    /// Radius of the position kernel and side of the grid cells (metres). Default 0.08.
+    pub position_bandwidth: f32,
+    /// Geodesic radius of the rotation kernel (radians, in (0, π]). Default 0.5 (~29°).
+    pub rotation_bandwidth: f32,
+    /// How many hypotheses to return at most. Default 5.
+    pub max_hypotheses: usize,
+    /// Position modes closer than this (metres) to a stronger one are suppressed; at least
+    /// `position_bandwidth / 4` is used. Default 0.25.
+    pub nms_radius: f32,
+    /// How many of the heaviest grid cells seed the position mean-shift. Default 64.
+    pub max_seeds: usize,
+    /// Iteration cap of each mean-shift loop. Default 50.
+    pub max_iterations: usize,
+    /// Rotation modes per position mode (more than 1 for symmetric objects). Default 1.
+    pub rotations_per_position: usize,
+    /// Candidate starts for the rotation mode (a strided subsample of the support). Default 128.
+    pub rotation_candidates: usize,
+    /// Votes the candidates' densities are evaluated on (strided subsample). Default 2048.
+    pub rotation_eval_votes: usize,
+    /// Hypotheses supported by fewer votes (in both kernels) are dropped. Default 3.
+    pub min_support: usize,
+}
+
+impl Default for VoteParams {
+    fn default() -> Self {
+        Self {
+            position_bandwidth: 0.08,
+            rotation_bandwidth: 0.5,
+            max_hypotheses: 5,
+            nms_radius: 0.25,
+            max_seeds: 64,
+            max_iterations: 50,
+            rotations_per_position: 1,
+            rotation_candidates: 128,
+            rotation_eval_votes: 2048,
+            min_support: 3,
+        }
+    }
+}
+
+impl VoteParams {
+    /// Checks every field; the error names the parameter at fault.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |name: &str, why: String| Err(IsaError::InvalidParameter(format!("{name} {why}")));
+        let h = self.position_bandwidth;
+        if !(h.is_finite() && h > 1e-4 && h < 1e3) {
+            return bad("position_bandwidth", format!("must be in (1e-4, 1e3) metres, got {h}"));
+        }
+        let r = self.rotation_bandwidth;
+        if !(r.is_finite() && r > 1e-4 && r <= std::f32::consts::PI) {
+            return bad("rotation_bandwidth", format!("must be in (1e-4, pi] radians, got {r}"));
+        }
+        if !(self.nms_radius.is_finite() && self.nms_radius >= 0.0) {
+            return bad(
+                "nms_radius",
+                format!("must be finite and >= 0, got {}", self.nms_radius),
+            );
+        }
+        for (name, v) in [
+            ("max_hypotheses", self.max_hypotheses),
+            ("max_seeds", self.max_seeds),
+            ("max_iterations", self.max_iterations),
+            ("rotations_per_position", self.rotations_per_position),
+            ("rotation_candidates", self.rotation_candidates),
+            ("rotation_eval_votes", self.rotation_eval_votes),
+        ] {
+            if v == 0 {
+                return bad(name, "must be >= 1, got 0".into());
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A pose hypothesis: `X_cam = R X_obj + t` with the SSC as object origin.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Hypothesis {
+    /// Rotation matrix `R`, row-major.
+    pub rotation: [[f64; 3]; 3],
+    /// The same rotation as a unit quaternion `(w, x, y, z)` with `w >= 0`.
+    pub quaternion: [f64; 4],
+    /// Translation `t` = SSC position in the camera frame (metres).
+    pub translation: [f64; 3],
+    /// Joint kernel density at the mode: `Σ w · k_pos · k_rot` (votes' weights times biweight
+    /// kernels, each 1 at the mode). Hypotheses are sorted by it, highest first.
+    pub score: f64,
+    /// Votes inside both kernels.
+    pub support: usize,
+    /// Position-only density `Σ w · k_pos`.
+    pub position_score: f64,
+    /// Votes inside the position kernel.
+    pub position_support: usize,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Quaternion helpers (w, x, y, z).
+
+/// Rotation matrix (row-major) of a quaternion `(w, x, y, z)`; normalises it first.
+pub fn quat_to_matrix(q: [f64; 4]) -> [[f64; 3]; 3] {
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let (w, x, y, z) = (q[0] / n, q[1] / n, q[2] / n, q[3] / n);
+    [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ]
+}
+
+/// Unit quaternion `(w, x, y, z)`, `w >= 0`, of a rotation matrix (row-major); robust
+/// (Shepperd's method).
+pub fn matrix_to_quat(m: [[f64; 3]; 3]) -> [f64; 4] {
+    let tr = m[0][0] + m[1][1] + m[2][2];
+    let q = if tr > 0.0 {
+        let s = (tr + 1.0).sqrt() * 2.0;
+        [
+            0.25 * s,
+            (m[2][1] - m[1][2]) / s,
+            (m[0][2] - m[2][0]) / s,
+            (m[1][0] - m[0][1]) / s,
+        ]
+    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
+        let s = (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt() * 2.0;
+        [
+            (m[2][1] - m[1][2]) / s,
+            0.25 * s,
+            (m[0][1] + m[1][0]) / s,
+            (m[0][2] + m[2][0]) / s,
+        ]
+    } else if m[1][1] > m[2][2] {
+        let s = (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt() * 2.0;
+        [
+            (m[0][2] - m[2][0]) / s,
+            (m[0][1] + m[1][0]) / s,
+            0.25 * s,
+            (m[1][2] + m[2][1]) / s,
+        ]
+    } else {
+        let s = (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt() * 2.0;
+        [
+            (m[1][0] - m[0][1]) / s,
+            (m[0][2] + m[2][0]) / s,
+            (m[1][2] + m[2][1]) / s,
+            0.25 * s,
+        ]
+    };
+    canonical(normalise4(q))
+}
+
+/// Geodesic angle (radians, in [0, π]) between the rotations of two quaternions, sign-free.
+pub fn quat_angle(a: [f64; 4], b: [f64; 4]) -> f64 {
+    let na = dot4(a, a).sqrt();
+    let nb = dot4(b, b).sqrt();
+    let c = (dot4(a, b).abs() / (na * nb)).min(1.0);
+    2.0 * c.acos()
+}
+
+#[inline]
+fn dot4(a: [f64; 4], b: [f64; 4]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+}
+
+fn normalise4(q: [f64; 4]) -> [f64; 4] {
+    let n = dot4(q, q).sqrt();
+    [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
+}
+
+/// Sign convention of output quaternions: `w >= 0`, then the first non-zero component positive.
+fn canonical(q: [f64; 4]) -> [f64; 4] {
+    let first = q.iter().copied().find(|v| *v != 0.0).unwrap_or(1.0);
+    if q[0] < 0.0 || (q[0] == 0.0 && first < 0.0) {
+        [-q[0], -q[1], -q[2], -q[3]]
+    } else {
+        q
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The grid.
+
+/// FxHash-style hasher for packed cell keys (fast, fixed, so iteration order is reproducible).
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.write_u64(*b as u64);
+        }
+    }
+    #[inline]
+    fn write_u64(&mut self, x: u64) {
+        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+}
+
+type CellMap = HashMap<u64, u32, BuildHasherDefault<CellHasher>>;
+
+const KEY_BITS: u32 = 21;
+const KEY_OFF: i64 = 1 << (KEY_BITS - 1);
+
+#[inline]
+fn cell_index(p: [f64; 3], inv_cell: f64) -> [i64; 3] {
+    [
+        (p[0] * inv_cell).floor() as i64,
+        (p[1] * inv_cell).floor() as i64,
+        (p[2] * inv_cell).floor() as i64,
+    ]
+}
+
+/// Packs a cell index into 63 bits; indices beyond ±2^20 cells are clamped (votes that far
+/// never fall inside a kernel of a sane mode anyway, distances use raw positions).
+#[inline]
+fn pack(c: [i64; 3]) -> u64 {
+    let f = |v: i64| ((v.clamp(-KEY_OFF, KEY_OFF - 1) + KEY_OFF) as u64) & ((1 << KEY_BITS) - 1);
+    (f(c[0]) << (2 * KEY_BITS)) | (f(c[1]) << KEY_BITS) | f(c[2])
+}
+
+struct Cell {
+    weight: f64,
+    centroid: [f64; 3],
+    start: u32,
+    end: u32,
+}
+
+/// Votes after validation, reordered cell by cell, plus the grid.
+struct Grid {
+    pos: Vec<[f64; 3]>,
+    quat: Vec<[f64; 4]>,
+    weight: Vec<f64>,
+    cells: Vec<Cell>,
+    map: CellMap,
+    inv_cell: f64,
+}
+
+impl Grid {
+    fn build(votes: &[PoseVote], cell: f64) -> Result<Grid> {
+        // Validate in parallel (first bad index reported deterministically).
+        if let Some((i, why)) = votes
+            .par_iter()
+            .enumerate()
+            .filter_map(|(i, v)| vote_problem(v).map(|w| (i, w)))
+            .min_by_key(|(i, _)| *i)
+        {
+            return Err(IsaError::InvalidInput(format!("votes[{i}]: {why}")));
+        }
+        let inv_cell = 1.0 / cell;
+        let keys: Vec<u64> = votes
+            .par_iter()
+            .map(|v| {
+                if v.weight > 0.0 {
+                    pack(cell_index(v.position.map(f64::from), inv_cell))
+                } else {
+                    u64::MAX
+                }
+            })
+            .collect();
+        // Assign cells in order of first appearance (deterministic), count votes per cell.
+        let mut map = CellMap::default();
+        let mut cell_of = vec![u32::MAX; votes.len()];
+        let mut counts: Vec<u32> = Vec::new();
+        for (i, &k) in keys.iter().enumerate() {
+            if k == u64::MAX {
+                continue;
+            }
+            let next = counts.len() as u32;
+            let c = *map.entry(k).or_insert(next);
+            if c == next {
+                counts.push(0);
+            }
+            counts[c as usize] += 1;
+            cell_of[i] = c;
+        }
+        // Counting sort: the votes of each cell become contiguous.
+        let mut cells: Vec<Cell> = Vec::with_capacity(counts.len());
+        let mut offset = 0u32;
+        for &n in &counts {
+            cells.push(Cell {
+                weight: 0.0,
+                centroid: [0.0; 3],
+                start: offset,
+                end: offset,
+            });
+            offset += n;
+        }
+        let n = offset as usize;
+        let mut pos = vec![[0.0f64; 3]; n];
+        let mut quat = vec![[0.0f64; 4]; n];
+        let mut weight = vec![0.0f64; n];
+        for (i, v) in votes.iter().enumerate() {
+            let c = cell_of[i];
+            if c == u32::MAX {
+                continue;
+            }
+            let cell = &mut cells[c as usize];
+            let j = cell.end as usize;
+            cell.end += 1;
+            let p = v.position.map(f64::from);
+            let w = f64::from(v.weight);
+            pos[j] = p;
+            quat[j] = normalise4(v.rotation.map(f64::from));
+            weight[j] = w;
+            cell.weight += w;
+            for k in 0..3 {
+                cell.centroid[k] += w * p[k];
+            }
+        }
+        for cell in &mut cells {
+            for k in 0..3 {
+                cell.centroid[k] /= cell.weight;
+            }
+        }
+        Ok(Grid {
+            pos,
+            quat,
+            weight,
+            cells,
+            map,
+            inv_cell,
+        })
+    }
+
+    /// Calls `f` with every cell in the 3x3x3 block around `p`'s cell.
+    #[inline]
+    fn for_neighbour_cells(&self, p: [f64; 3], mut f: impl FnMut(&Cell)) {
+        let c = cell_index(p, self.inv_cell);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(&i) = self.map.get(&pack([c[0] + dx, c[1] + dy, c[2] + dz])) {
+                        f(&self.cells[i as usize]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn vote_problem(v: &PoseVote) -> Option<String> {
+    if !v.position.iter().all(|x| x.is_finite()) {
+        return Some(format!("position {:?} is not finite", v.position));
+    }
+    if !(v.weight.is_finite() && v.weight >= 0.0) {
+        return Some(format!("weight {} must be finite and >= 0", v.weight));
+    }
+    let q = v.rotation;
+    let n2 = q.iter().map(|x| f64::from(*x) * f64::from(*x)).sum::<f64>();
+    if !(n2.is_finite() && n2 > 1e-12) {
+        return Some(format!("rotation {q:?} is not a finite non-zero quaternion"));
+    }
+    None
+}
+
+#[inline]
+fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+}
+
+// ---------------------------------------------------------------------------------------------
+// Position modes.
+
+struct PositionMode {
+    position: [f64; 3],
+    score: f64,
+    support: usize,
+}
+
+/// Mean-shift from `start`: first on cell centroids, then on raw votes. `None` if the kernel
+/// around the start is empty.
+fn position_mean_shift(grid: &Grid, start: [f64; 3], h: f64, max_iter: usize) -> Option<PositionMode> {
+    let h2 = h * h;
+    let mut m = start;
+    // Coarse: cell centroids weighted by cell weight.
+    for _ in 0..max_iter {
+        let (mut acc, mut ws) = ([0.0f64; 3], 0.0f64);
+        grid.for_neighbour_cells(m, |c| {
+            let d2 = dist2(c.centroid, m);
+            if d2 < h2 {
+                let g = c.weight * (1.0 - d2 / h2);
+                ws += g;
+                for k in 0..3 {
+                    acc[k] += g * c.centroid[k];
+                }
+            }
+        });
+        if ws <= 0.0 {
+            break;
+        }
+        let next = acc.map(|a| a / ws);
+        let shift2 = dist2(next, m);
+        m = next;
+        if shift2 < 1e-6 * h2 {
+            break;
+        }
+    }
+    // Fine: raw votes.
+    for _ in 0..max_iter {
+        let (mut acc, mut ws) = ([0.0f64; 3], 0.0f64);
+        grid.for_neighbour_cells(m, |c| {
+            for j in c.start as usize..c.end as usize {
+                let p = grid.pos[j];
+                let d2 = dist2(p, m);
+                if d2 < h2 {
+                    let g = grid.weight[j] * (1.0 - d2 / h2);
+                    ws += g;
+                    for k in 0..3 {
+                        acc[k] += g * p[k];
+                    }
+                }
+            }
+        });
+        if ws <= 0.0 {
+            return None;
+        }
+        let next = acc.map(|a| a / ws);
+        let shift2 = dist2(next, m);
+        m = next;
+        if shift2 < 1e-8 * h2 {
+            break;
+        }
+    }
+    let (mut score, mut support) = (0.0f64, 0usize);
+    grid.for_neighbour_cells(m, |c| {
+        for j in c.start as usize..c.end as usize {
+            let d2 = dist2(grid.pos[j], m);
+            if d2 < h2 {
+                let u = 1.0 - d2 / h2;
+                score += grid.weight[j] * u * u;
+                support += 1;
+            }
+        }
+    });
+    (support > 0).then_some(PositionMode {
+        position: m,
+        score,
+        support,
+    })
+}
+
+/// Orders by score, highest first; ties by position (total order on floats), so sorting is
+/// deterministic whatever the input order.
+fn by_score_then_position(a: (f64, [f64; 3]), b: (f64, [f64; 3])) -> std::cmp::Ordering {
+    b.0.total_cmp(&a.0)
+        .then_with(|| a.1[0].total_cmp(&b.1[0]))
+        .then_with(|| a.1[1].total_cmp(&b.1[1]))
+        .then_with(|| a.1[2].total_cmp(&b.1[2]))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Rotation modes.
+
+/// Biweight kernel on SO(3) expressed through `c = |q·p|` (cos of half the angle), so no `acos`:
+/// `u = (1 - c²) / (1 - cos²(θ_h / 2))` = `sin²(θ/2) / sin²(θ_h/2)`, inside the kernel iff `u < 1`.
+struct RotKernel {
+    inv_denom: f64,
+}
+
+impl RotKernel {
+    fn new(bandwidth: f64) -> Self {
+        let ch = (bandwidth / 2.0).cos();
+        Self {
+            inv_denom: 1.0 / (1.0 - ch * ch).max(1e-300),
+        }
+    }
+    /// `1 - u` (the mean-shift weight profile), <= 0 outside the kernel.
+    #[inline]
+    fn g(&self, q: [f64; 4], p: [f64; 4]) -> (f64, f64) {
+        let d = dot4(q, p);
+        let c = d.abs().min(1.0);
+        (1.0 - (1.0 - c * c) * self.inv_denom, d)
+    }
+}
+
+struct RotationMode {
+    q: [f64; 4],
+    score: f64,
+    support: usize,
+}
+
+/// Rotation modes among `idx` (indices into the grid's votes) with weights `a`.
+fn rotation_modes(grid: &Grid, idx: &[u32], a: &[f64], params: &VoteParams) -> Vec<RotationMode> {
+    let n = idx.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let kern = RotKernel::new(f64::from(params.rotation_bandwidth));
+    let q_of = |i: usize| grid.quat[idx[i] as usize];
+    let strided = |count: usize| -> Vec<usize> {
+        let m = count.min(n);
+        (0..m).map(|j| j * n / m).collect()
+    };
+    let eval = strided(params.rotation_eval_votes);
+    let mut cands: Vec<(f64, usize)> = strided(params.rotation_candidates)
+        .into_iter()
+        .map(|ci| {
+            let c = q_of(ci);
+            let dens: f64 = eval
+                .iter()
+                .map(|&e| {
+                    let (g, _) = kern.g(c, q_of(e));
+                    if g > 0.0 {
+                        a[e] * g * g
+                    } else {
+                        0.0
+                    }
+                })
+                .sum();
+            (dens, ci)
+        })
+        .collect();
+    cands.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+
+    // Mean-shift on a set of indices (into idx) until the rotation stops moving.
+    let shift = |start: [f64; 4], set: &mut dyn Iterator<Item = usize>, iters: usize| -> [f64; 4] {
+        let members: Vec<usize> = set.collect();
+        let mut q = start;
+        for _ in 0..iters {
+            let mut acc = [0.0f64; 4];
+            let mut ws = 0.0;
+            for &i in &members {
+                let p = q_of(i);
+                let (g, d) = kern.g(q, p);
+                if g > 0.0 {
+                    let w = a[i] * g * d.signum();
+                    ws += a[i] * g;
+                    for k in 0..4 {
+                        acc[k] += w * p[k];
+                    }
+                }
+            }
+            let norm = dot4(acc, acc).sqrt();
+            if ws <= 0.0 || norm <= 1e-300 {
+                break;
+            }
+            let next = acc.map(|v| v / norm);
+            let moved = 1.0 - dot4(next, q).abs();
+            q = next;
+            if moved < 1e-12 {
+                break;
+            }
+        }
+        q
+    };
+
+    let mut modes: Vec<RotationMode> = Vec::new();
+    let min_sep = f64::from(params.rotation_bandwidth);
+    for &(_, ci) in &cands {
+        if modes.len() >= params.rotations_per_position {
+            break;
+        }
+        let start = q_of(ci);
+        if modes.iter().any(|m| quat_angle(m.q, start) < min_sep) {
+            continue;
+        }
+        // Converge on the evaluation subsample first (cheap), then on all votes.
+        let q = shift(start, &mut eval.iter().copied(), params.max_iterations);
+        let q = shift(q, &mut (0..n), params.max_iterations);
+        if modes.iter().any(|m| quat_angle(m.q, q) < 0.5 * min_sep) {
+            continue;
+        }
+        let (mut score, mut support) = (0.0f64, 0usize);
+        for i in 0..n {
+            let (g, _) = kern.g(q, q_of(i));
+            if g > 0.0 {
+                score += a[i] * g * g;
+                support += 1;
+            }
+        }
+        modes.push(RotationMode {
+            q: canonical(q),
+            score,
+            support,
+        });
+    }
+    modes
+}
+
+// ---------------------------------------------------------------------------------------------
+
+/// Finds the modes of the votes' density and returns them as hypotheses, best first.
+///
+/// Errors name the first bad vote (non-finite position, negative weight, zero quaternion) or
+/// the bad parameter. No votes (or all of weight 0) give no hypotheses.
+pub fn find_modes(votes: &[PoseVote], params: &VoteParams) -> Result<Vec<Hypothesis>> {
+    params.validate()?;
+    let h = f64::from(params.position_bandwidth);
+    let grid = Grid::build(votes, h)?;
+    if grid.cells.is_empty() {
+        return Ok(Vec::new());
+    }
+
+    // Seeds: the heaviest cells (ties by key order of appearance -> deterministic).
+    let mut order: Vec<u32> = (0..grid.cells.len() as u32).collect();
+    let n_seeds = params.max_seeds.min(order.len());
+    let heavier = |a: &u32, b: &u32| {
+        grid.cells[*b as usize]
+            .weight
+            .total_cmp(&grid.cells[*a as usize].weight)
+            .then(a.cmp(b))
+    };
+    if n_seeds < order.len() {
+        order.select_nth_unstable_by(n_seeds - 1, heavier);
+        order.truncate(n_seeds);
+    }
+    order.sort_by(heavier);
+
+    let max_iter = params.max_iterations;
+    let mut modes: Vec<PositionMode> = order
+        .par_iter()
+        .filter_map(|&c| position_mean_shift(&grid, grid.cells[c as usize].centroid, h, max_iter))
+        .collect();
+    modes.sort_by(|a, b| by_score_then_position((a.score, a.position), (b.score, b.position)));
+
+    // NMS on positions (also merges seeds that converged to the same mode).
+    let r = f64::from(params.nms_radius).max(0.25 * h);
+    let keep_positions = params.max_hypotheses.saturating_mul(2).max(params.max_hypotheses + 2);
+    let mut kept: Vec<PositionMode> = Vec::new();
+    for m in modes {
+        if kept.len() >= keep_positions {
+            break;
+        }
+        if kept.iter().all(|k| dist2(k.position, m.position) >= r * r) {
+            kept.push(m);
+        }
+    }
+
+    // Rotation modes among each position mode's support, in parallel.
+    let h2 = h * h;
+    let mut hyps: Vec<Hypothesis> = kept
+        .par_iter()
+        .flat_map_iter(|m| {
+            let (mut idx, mut a) = (Vec::new(), Vec::new());
+            grid.for_neighbour_cells(m.position, |c| {
+                for j in c.start..c.end {
+                    let d2 = dist2(grid.pos[j as usize], m.position);
+                    if d2 < h2 {
+                        let u = 1.0 - d2 / h2;
+                        idx.push(j);
+                        a.push(grid.weight[j as usize] * u * u);
+                    }
+                }
+            });
+            rotation_modes(&grid, &idx, &a, params)
+                .into_iter()
+                .map(move |rm| Hypothesis {
+                    rotation: quat_to_matrix(rm.q),
+                    quaternion: rm.q,
+                    translation: m.position,
+                    score: rm.score,
+                    support: rm.support,
+                    position_score: m.score,
+                    position_support: m.support,
+                })
+        })
+        .filter(|hy| hy.support >= params.min_support)
+        .collect();
+    hyps.sort_by(|a, b| {
+        by_score_then_position((a.score, a.translation), (b.score, b.translation)).then_with(|| {
+            a.quaternion
+                .iter()
+                .zip(&b.quaternion)
+                .fold(std::cmp::Ordering::Equal, |o, (x, y)| o.then(x.total_cmp(y)))
+        })
+    });
+    hyps.truncate(params.max_hypotheses);
+    Ok(hyps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn gauss(rng: &mut ChaCha8Rng) -> f64 {
+        // Box-Muller.
+        let u1: f64 = rng.random::<f64>().max(1e-12);
+        let u2: f64 = rng.random::<f64>();
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+
+    fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+        [
+            a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+            a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+            a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+            a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+        ]
+    }
+
+    fn axis_angle(axis: [f64; 3], angle: f64) -> [f64; 4] {
+        let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+        let s = (angle / 2.0).sin() / n;
+        [(angle / 2.0).cos(), axis[0] * s, axis[1] * s, axis[2] * s]
+    }
+
+    fn random_quat(rng: &mut ChaCha8Rng) -> [f64; 4] {
+        normalise4([gauss(rng), gauss(rng), gauss(rng), gauss(rng)])
+    }
+
+    /// Votes around `t` (σ metres) with rotations around `q` (σ_rot radians per axis), random signs.
+    fn cluster(
+        rng: &mut ChaCha8Rng,
+        n: usize,
+        t: [f64; 3],
+        sigma: f64,
+        q: [f64; 4],
+        sigma_rot: f64,
+        w: f32,
+    ) -> Vec<PoseVote> {
+        (0..n)
+            .map(|_| {
+                let p = [
+                    t[0] + sigma * gauss(rng),
+                    t[1] + sigma * gauss(rng),
+                    t[2] + sigma * gauss(rng),
+                ];
+                let axis = [gauss(rng), gauss(rng), gauss(rng)];
+                let ang = sigma_rot * gauss(rng);
+                let mut r = quat_mul(q, axis_angle(axis, ang));
+                if rng.random::<bool>() {
+                    r = r.map(|v| -v);
+                }
+                PoseVote {
+                    position: p.map(|v| v as f32),
+                    rotation: r.map(|v| v as f32),
+                    weight: w,
+                }
+            })
+            .collect()
+    }
+
+    fn outliers(rng: &mut ChaCha8Rng, n: usize) -> Vec<PoseVote> {
+        (0..n)
+            .map(|_| {
+                let p = [
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(0.5..6.0),
+                ];
+                PoseVote {
+                    position: p,
+                    rotation: random_quat(rng).map(|v| v as f32),
+                    weight: 1.0,
+                }
+            })
+            .collect()
+    }
+
+    fn scene(seed: u64) -> (Vec<PoseVote>, [[f64; 3]; 2], [[f64; 4]; 2]) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let t = [[0.3, -0.1, 2.5], [-0.9, 0.2, 3.4]];
+        let q = [normalise4([0.9, 0.1, -0.3, 0.2]), normalise4([-0.2, 0.7, 0.5, -0.4])];
+        let mut v = cluster(&mut rng, 6000, t[0], 0.03, q[0], 0.08, 1.0);
+        v.extend(cluster(&mut rng, 3000, t[1], 0.03, q[1], 0.08, 1.0));
+        v.extend(outliers(&mut rng, 8000));
+        // Shuffle so clusters are interleaved.
+        for i in (1..v.len()).rev() {
+            let j = rng.random_range(0..=i);
+            v.swap(i, j);
+        }
+        (v, t, q)
+    }
+
+    fn tdist(a: [f64; 3], b: [f64; 3]) -> f64 {
+        dist2(a, b).sqrt()
+    }
+
+    #[test]
+    fn recovers_two_modes_among_outliers_in_order() {
+        let (votes, t, q) = scene(1);
+        let hyps = find_modes(&votes, &VoteParams::default()).unwrap();
+        assert!(hyps.len() >= 2, "{hyps:?}");
+        assert!(tdist(hyps[0].translation, t[0]) < 0.01, "{:?}", hyps[0]);
+        assert!(
+            quat_angle(hyps[0].quaternion, q[0]) < 2f64.to_radians(),
+            "{:?}",
+            hyps[0]
+        );
+        assert!(tdist(hyps[1].translation, t[1]) < 0.01, "{:?}", hyps[1]);
+        assert!(
+            quat_angle(hyps[1].quaternion, q[1]) < 2f64.to_radians(),
+            "{:?}",
+            hyps[1]
+        );
+        for w in hyps.windows(2) {
+            assert!(w[0].score >= w[1].score);
+        }
+        // Outlier-only hypotheses score far below the real ones.
+        for hy in &hyps[2..] {
+            assert!(hy.score < 0.1 * hyps[1].score, "{hy:?}");
+        }
+        assert!(hyps[0].support > 1000 && hyps[0].position_support >= hyps[0].support);
+    }
+
+    #[test]
+    fn rotation_matrix_is_proper_and_matches_quaternion() {
+        let (votes, _, _) = scene(2);
+        for hy in find_modes(&votes, &VoteParams::default()).unwrap() {
+            let r = hy.rotation;
+            for i in 0..3 {
+                for j in 0..3 {
+                    let d: f64 = (0..3).map(|k| r[i][k] * r[j][k]).sum();
+                    assert!((d - if i == j { 1.0 } else { 0.0 }).abs() < 1e-9);
+                }
+            }
+            let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+                - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+                + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+            assert!((det - 1.0).abs() < 1e-9);
+            assert!(hy.quaternion[0] >= 0.0);
+            assert!(quat_angle(matrix_to_quat(r), hy.quaternion) < 1e-6);
+        }
+    }
+
+    #[test]
+    fn quaternion_signs_do_not_matter() {
+        let (votes, _, _) = scene(3);
+        let flipped: Vec<PoseVote> = votes
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                if i % 3 == 0 {
+                    PoseVote {
+                        rotation: v.rotation.map(|x| -x),
+                        ..*v
+                    }
+                } else {
+                    *v
+                }
+            })
+            .collect();
+        let a = find_modes(&votes, &VoteParams::default()).unwrap();
+        let b = find_modes(&flipped, &VoteParams::default()).unwrap();
+        assert_eq!(a.len(), b.len());
+        for (x, y) in a.iter().zip(&b) {
+            assert!(tdist(x.translation, y.translation) < 1e-12);
+            assert!(quat_angle(x.quaternion, y.quaternion) < 1e-6);
+            assert!((x.score - y.score).abs() < 1e-9 * x.score);
+        }
+    }
+
+    #[test]
+    fn rotation_near_pi_mixed_signs() {
+        // Rotation of ~180° about z: w ~ 0, so noise flips the sign of w; a naive average fails.
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let q = axis_angle([0.0, 0.0, 1.0], std::f64::consts::PI);
+        let votes = cluster(&mut rng, 2000, [0.0, 0.0, 2.0], 0.02, q, 0.1, 1.0);
+        let hyps = find_modes(&votes, &VoteParams::default()).unwrap();
+        assert!(quat_angle(hyps[0].quaternion, q) < 2f64.to_radians(), "{:?}", hyps[0]);
+    }
+
+    #[test]
+    fn deterministic_across_runs_and_threads_stable_under_input_order() {
+        let (votes, _, _) = scene(5);
+        let p = VoteParams::default();
+        let a = find_modes(&votes, &p).unwrap();
+        let b = find_modes(&votes, &p).unwrap();
+        assert_eq!(a, b);
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let c = one.install(|| find_modes(&votes, &p).unwrap());
+        assert_eq!(a, c);
+        let three = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let d = three.install(|| find_modes(&votes, &p).unwrap());
+        assert_eq!(a, d);
+        // Reversed input: same modes up to float summation order.
+        let rev: Vec<PoseVote> = votes.iter().rev().copied().collect();
+        let e = find_modes(&rev, &p).unwrap();
+        for (x, y) in a.iter().zip(&e).take(2) {
+            assert!(tdist(x.translation, y.translation) < 1e-9);
+            assert!(quat_angle(x.quaternion, y.quaternion) < 1e-6);
+        }
+    }
+
+    #[test]
+    fn weights_decide_the_ranking() {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let q = [1.0, 0.0, 0.0, 0.0];
+        let mut votes = cluster(&mut rng, 1000, [0.0, 0.0, 2.0], 0.02, q, 0.05, 1.0);
+        votes.extend(cluster(&mut rng, 300, [1.0, 0.0, 2.0], 0.02, q, 0.05, 10.0));
+        let hyps = find_modes(&votes, &VoteParams::default()).unwrap();
+        assert!(tdist(hyps[0].translation, [1.0, 0.0, 2.0]) < 0.01);
+        assert!(tdist(hyps[1].translation, [0.0, 0.0, 2.0]) < 0.01);
+        assert!(hyps[0].score > hyps[1].score);
+    }
+
+    #[test]
+    fn nms_and_max_hypotheses() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let q = [1.0, 0.0, 0.0, 0.0];
+        let mut votes = Vec::new();
+        for i in 0..8 {
+            votes.extend(cluster(
+                &mut rng,
+                500 + 50 * i,
+                [0.5 * i as f64, 0.0, 3.0],
+                0.01,
+                q,
+                0.05,
+                1.0,
+            ));
+        }
+        let p = VoteParams {
+            max_hypotheses: 3,
+            ..Default::default()
+        };
+        let hyps = find_modes(&votes, &p).unwrap();
+        assert_eq!(hyps.len(), 3);
+        // The three biggest clusters (i = 7, 6, 5), in that order.
+        for (k, hy) in hyps.iter().enumerate() {
+            assert!(tdist(hy.translation, [0.5 * (7 - k) as f64, 0.0, 3.0]) < 0.01, "{hy:?}");
+        }
+        // With an NMS radius over 0.5 m neighbours suppress each other.
+        let p = VoteParams {
+            max_hypotheses: 8,
+            nms_radius: 0.6,
+            ..Default::default()
+        };
+        let hyps = find_modes(&votes, &p).unwrap();
+        for (i, a) in hyps.iter().enumerate() {
+            for b in &hyps[i + 1..] {
+                assert!(tdist(a.translation, b.translation) >= 0.6);
+            }
+        }
+        assert!(tdist(hyps[0].translation, [3.5, 0.0, 3.0]) < 0.01);
+    }
+
+    #[test]
+    fn several_rotations_per_position() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let q1 = axis_angle([0.0, 0.0, 1.0], 0.3);
+        let q2 = axis_angle([0.0, 0.0, 1.0], 0.3 + std::f64::consts::PI);
+        let mut votes = cluster(&mut rng, 1500, [0.0, 0.0, 2.0], 0.02, q1, 0.05, 1.0);
+        votes.extend(cluster(&mut rng, 1000, [0.0, 0.0, 2.0], 0.02, q2, 0.05, 1.0));
+        let p = VoteParams {
+            rotations_per_position: 2,
+            ..Default::default()
+        };
+        let hyps = find_modes(&votes, &p).unwrap();
+        assert!(quat_angle(hyps[0].quaternion, q1) < 2f64.to_radians());
+        assert!(quat_angle(hyps[1].quaternion, q2) < 2f64.to_radians());
+        assert_eq!(hyps[0].translation, hyps[1].translation);
+        let one = find_modes(&votes, &VoteParams::default()).unwrap();
+        assert_eq!(one.len(), 1);
+    }
+
+    #[test]
+    fn empty_zero_weight_and_min_support() {
+        assert!(find_modes(&[], &VoteParams::default()).unwrap().is_empty());
+        let v = PoseVote {
+            position: [0.0, 0.0, 1.0],
+            rotation: [1.0, 0.0, 0.0, 0.0],
+            weight: 0.0,
+        };
+        assert!(find_modes(&[v; 10], &VoteParams::default()).unwrap().is_empty());
+        let v1 = PoseVote { weight: 1.0, ..v };
+        assert!(find_modes(&[v1; 2], &VoteParams::default()).unwrap().is_empty());
+        let hyps = find_modes(&[v1; 3], &VoteParams::default()).unwrap();
+        assert_eq!(hyps.len(), 1);
+        assert_eq!(hyps[0].support, 3);
+        assert!((hyps[0].score - 3.0).abs() < 1e-9);
+        assert!(tdist(hyps[0].translation, [0.0, 0.0, 1.0]) < 1e-6);
+        // Non-unit quaternions are normalised.
+        let v2 = PoseVote {
+            rotation: [0.0, 0.0, 0.0, -3.0],
+            weight: 1.0,
+            ..v
+        };
+        let hyps = find_modes(&[v2; 5], &VoteParams::default()).unwrap();
+        assert!((hyps[0].quaternion[3] - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn errors_name_the_vote_or_parameter() {
+        let good = PoseVote {
+            position: [0.0, 0.0, 1.0],
+            rotation: [1.0, 0.0, 0.0, 0.0],
+            weight: 1.0,
+        };
+        let mut votes = vec![good; 5];
+        votes[3].position[1] = f32::NAN;
+        let e = find_modes(&votes, &VoteParams::default()).unwrap_err().to_string();
+        assert!(e.contains("votes[3]") && e.contains("position"), "{e}");
+        votes[3] = PoseVote { weight: -1.0, ..good };
+        votes[4] = PoseVote {
+            rotation: [0.0; 4],
+            ..good
+        };
+        let e = find_modes(&votes, &VoteParams::default()).unwrap_err().to_string();
+        assert!(e.contains("votes[3]") && e.contains("weight"), "{e}");
+        for (p, name) in [
+            (
+                VoteParams {
+                    position_bandwidth: 0.0,
+                    ..Default::default()
+                },
+                "position_bandwidth",
+            ),
+            (
+                VoteParams {
+                    rotation_bandwidth: 4.0,
+                    ..Default::default()
+                },
+                "rotation_bandwidth",
+            ),
+            (
+                VoteParams {
+                    nms_radius: f32::NAN,
+                    ..Default::default()
+                },
+                "nms_radius",
+            ),
+            (
+                VoteParams {
+                    max_hypotheses: 0,
+                    ..Default::default()
+                },
+                "max_hypotheses",
+            ),
+            (
+                VoteParams {
+                    max_seeds: 0,
+                    ..Default::default()
+                },
+                "max_seeds",
+            ),
+        ] {
+            let e = find_modes(&[good], &p).unwrap_err();
+            assert!(matches!(e, IsaError::InvalidParameter(_)));
+            assert!(e.to_string().contains(name), "{e}");
+        }
+    }
+
+    #[test]
+    fn params_serde_defaults_and_unknown_fields() {
+        let p: VoteParams = serde_json::from_str(r#"{"max_hypotheses": 2}"#).unwrap();
+        assert_eq!(
+            p,
+            VoteParams {
+                max_hypotheses: 2,
+                ..Default::default()
+            }
+        );
+        assert!(serde_json::from_str::<VoteParams>(r#"{"bandwidth": 2}"#).is_err());
+    }
+
+    #[test]
+    fn quaternion_helpers_agree() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for _ in 0..200 {
+            let q = random_quat(&mut rng);
+            let back = matrix_to_quat(quat_to_matrix(q));
+            assert!(quat_angle(q, back) < 1e-6);
+            let p = quat_mul(q, axis_angle([1.0, 2.0, 3.0], 0.7));
+            assert!((quat_angle(q, p) - 0.7).abs() < 1e-9);
+            assert!((quat_angle(q, p.map(|v| -v)) - 0.7).abs() < 1e-9);
+        }
+    }
+}
