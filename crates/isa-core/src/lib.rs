@@ -5,6 +5,8 @@
 //! The crate is pure Rust; `isa-py` binds it to Python and `isa-cli` wraps it as a binary.
 
 pub mod error;
+/// Vote aggregation, mode finding and whole-image prediction (inference helper's module).
+pub mod vote;
 
 pub use error::{IsaError, Result};
 
