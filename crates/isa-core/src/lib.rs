@@ -3,12 +3,30 @@
 //! Pose Recovery in Depth Images").
 //!
 //! The crate is pure Rust; `isa-py` binds it to Python and `isa-cli` wraps it as a binary.
+//!
+//! Module map: [`depth`] (image store, part sampling), [`features`] (Eq. 5),
+//! [`criterion`] (Q1/Q2/Q3, Eq. 9-11), [`splitter`] (split search), [`tree`] (builder, leaf
+//! votes), [`forest`] (training, traversal API for voting), [`model_io`] (model files).
 
+pub mod criterion;
+pub mod depth;
 pub mod error;
+pub mod features;
+pub mod forest;
+pub mod model_io;
+pub mod params;
+pub mod rng;
+pub mod splitter;
+pub mod tree;
 /// Vote aggregation, mode finding and whole-image prediction (inference helper's module).
 pub mod vote;
 
+pub use depth::{sample_parts, DepthStore, Part};
 pub use error::{IsaError, Result};
+pub use features::{Feature, BACKGROUND_MM};
+pub use forest::{Forest, PartVote, TrainingSet};
+pub use params::{ForestParams, Quality};
+pub use tree::{Tree, Vote};
 
 /// Version of this crate, written into every model file.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");

@@ -1,0 +1,268 @@
+//! The forest: training (rayon across trees and inside trees, deterministic), traversal and
+//! the per-part votes the voting stage aggregates (paper Eq. 12-13).
+//!
+//! ## Traversal API (for voting)
+//! * [`Forest::apply`] — leaf index of every (part, tree), row-major `P × T`.
+//! * [`Forest::leaf_votes`] — the weighted [`Vote`] modes of one leaf of one tree.
+//! * [`Forest::part_votes`] — both combined: for every part, every tree's leaf votes, as a
+//!   flat list of [`PartVote`] (part index, tree index, vote), ordered by part then tree.
+//!
+//! A vote's `offset` is the SSC offset Δx in the camera frame (metres): the SSC hypothesis of a
+//! part is its back-projected 3D point plus `offset`; `rotation` is the object rotation (unit
+//! quaternion w, x, y, z, w ≥ 0); `weight` is the mode's share of its leaf. Eq. 13 averages over
+//! trees: divide accumulated weights by `n_trees()`.
+
+use rand::seq::index::sample;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::criterion::{build_targets, Criterion, RawTargets};
+use crate::depth::{DepthStore, Part};
+use crate::error::{IsaError, Result};
+use crate::params::ForestParams;
+use crate::rng::mix;
+use crate::tree::{build_tree, TrainContext, Tree, Vote};
+
+/// Training data: images, parts and their targets (see DESIGN.md, data contract).
+#[derive(Clone, Copy, Debug)]
+pub struct TrainingSet<'a> {
+    pub store: &'a DepthStore,
+    pub parts: &'a [Part],
+    pub targets: RawTargets<'a>,
+}
+
+/// One vote of one part through one tree.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartVote {
+    pub part: u32,
+    pub tree: u32,
+    pub vote: Vote,
+}
+
+/// A trained forest plus its opaque metadata (category, SSC, skeleton, size: JSON from Python).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Forest {
+    pub params: ForestParams,
+    pub trees: Vec<Tree>,
+    /// Opaque JSON string stored in the model file.
+    pub metadata: String,
+    /// Version of the crate that trained (or wrote) this forest.
+    pub crate_version: String,
+}
+
+/// Runs `f` on a pool of `n_threads` threads, or on rayon's global pool when `None`.
+pub fn with_threads<T: Send>(n_threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+    match n_threads {
+        None => Ok(f()),
+        Some(0) => Err(IsaError::InvalidParameter("n_threads must be at least 1".into())),
+        Some(k) => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(k)
+                .build()
+                .map_err(|e| IsaError::InvalidParameter(format!("n_threads: cannot start {k} threads: {e}")))?;
+            Ok(pool.install(f))
+        }
+    }
+}
+
+impl Forest {
+    /// Trains a forest. The model (and its file bytes) depends only on `params` (incl. the
+    /// seed) and the data, not on `n_threads`.
+    pub fn fit(params: &ForestParams, data: &TrainingSet<'_>, metadata: &str, n_threads: Option<usize>) -> Result<Forest> {
+        params.validate()?;
+        let n = data.parts.len();
+        if n == 0 {
+            return Err(IsaError::InvalidInput("parts: no training parts".into()));
+        }
+        if data.targets.n() != n || data.targets.offsets.len() != 3 * n {
+            return Err(IsaError::InvalidInput(format!(
+                "offsets: expected ({n}, 3) for {n} parts, got {} values",
+                data.targets.offsets.len()
+            )));
+        }
+        if n > u32::MAX as usize / 2 {
+            return Err(IsaError::InvalidInput(format!("parts: {n} parts is too many")));
+        }
+        data.store.validate_parts(data.parts)?;
+        with_threads(n_threads, || -> Result<Forest> {
+            let targets = build_targets(&data.targets, params.quality, params.reduce_dims)?;
+            let crit = Criterion::new(targets.layout.clone(), params.reg);
+            let ctx = TrainContext {
+                params,
+                store: data.store,
+                parts: data.parts,
+                offsets: data.targets.offsets,
+                rotations: data.targets.rotations,
+                targets: &targets,
+                crit: &crit,
+            };
+            let n_bag = ((n as f64 * params.bag_fraction).round() as usize).clamp(1, n);
+            let trees: Vec<Tree> = (0..params.n_trees)
+                .into_par_iter()
+                .map(|t| {
+                    let bag: Vec<u32> = if n_bag == n {
+                        (0..n as u32).collect()
+                    } else {
+                        let mut rng = ChaCha8Rng::seed_from_u64(mix(&[params.seed, t as u64, 0xba66]));
+                        let mut v: Vec<u32> = sample(&mut rng, n, n_bag).into_iter().map(|i| i as u32).collect();
+                        v.sort_unstable();
+                        v
+                    };
+                    build_tree(&ctx, t, bag)
+                })
+                .collect();
+            Ok(Forest {
+                params: params.clone(),
+                trees,
+                metadata: metadata.to_string(),
+                crate_version: crate::VERSION.to_string(),
+            })
+        })?
+    }
+
+    pub fn n_trees(&self) -> usize {
+        self.trees.len()
+    }
+
+    /// Leaf index of every (part, tree): `out[p * n_trees + t]`. Parts are validated.
+    pub fn apply(&self, store: &DepthStore, parts: &[Part]) -> Result<Vec<u32>> {
+        store.validate_parts(parts)?;
+        let t = self.trees.len();
+        let mut out = vec![0u32; parts.len() * t];
+        if t == 0 {
+            return Ok(out);
+        }
+        out.par_chunks_mut(t).zip(parts.par_iter()).with_min_len(256).for_each(|(row, p)| {
+            for (o, tree) in row.iter_mut().zip(&self.trees) {
+                *o = tree.leaf_of(store, p);
+            }
+        });
+        Ok(out)
+    }
+
+    /// The vote modes of leaf `leaf` of tree `tree` (empty if either is out of range).
+    pub fn leaf_votes(&self, tree: usize, leaf: usize) -> &[Vote] {
+        self.trees.get(tree).map_or(&[], |t| t.leaf_votes(leaf))
+    }
+
+    /// Every vote of every part through every tree, ordered by part, then tree, then weight.
+    pub fn part_votes(&self, store: &DepthStore, parts: &[Part]) -> Result<Vec<PartVote>> {
+        let leaves = self.apply(store, parts)?;
+        let t = self.trees.len();
+        let mut out = Vec::new();
+        for (p, row) in leaves.chunks(t.max(1)).enumerate() {
+            for (ti, &l) in row.iter().enumerate() {
+                for v in self.leaf_votes(ti, l as usize) {
+                    out.push(PartVote { part: p as u32, tree: ti as u32, vote: *v });
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Total nodes and leaves over all trees.
+    pub fn size(&self) -> (usize, usize) {
+        (self.trees.iter().map(|t| t.nodes.len()).sum(), self.trees.iter().map(|t| t.n_leaves()).sum())
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// Toy problem: 20x20 planes at 1 m; a part's SSC offset is the vector to the image centre
+    /// (1 cm per pixel). Features reach the image border (background), so the answer is learnable.
+    pub(crate) fn toy(n_images: usize) -> (DepthStore, Vec<Part>, Vec<f32>, Vec<f32>) {
+        let mut store = DepthStore::new();
+        let (w, h) = (20usize, 20usize);
+        let mut parts = Vec::new();
+        let mut off = Vec::new();
+        let mut rot = Vec::new();
+        for i in 0..n_images {
+            store.push(w, h, &vec![1000u16; w * h]).unwrap();
+            for v in 0..h as i32 {
+                for u in 0..w as i32 {
+                    parts.push([i as i32, u, v]);
+                    off.extend_from_slice(&[(9.5 - u as f32) * 0.01, (9.5 - v as f32) * 0.01, 0.0]);
+                    let a = if u < 10 { 0.0f32 } else { 0.5 };
+                    rot.extend_from_slice(&[(a / 2.0).cos(), 0.0, 0.0, (a / 2.0).sin()]);
+                }
+            }
+        }
+        (store, parts, off, rot)
+    }
+
+    pub(crate) fn toy_params() -> ForestParams {
+        ForestParams {
+            n_trees: 3,
+            max_depth: 12,
+            min_samples_split: 4,
+            min_samples_leaf: 2,
+            n_candidates: 40,
+            max_offset: 25.0,
+            quality: crate::params::Quality::Q1,
+            vote_bandwidth_offset: 0.02,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn toy_problem_is_recovered() {
+        let (store, parts, off, rot) = toy(2);
+        let data = TrainingSet {
+            store: &store,
+            parts: &parts,
+            targets: RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None },
+        };
+        let f = Forest::fit(&toy_params(), &data, "{}", None).unwrap();
+        let leaves = f.apply(&store, &parts).unwrap();
+        let mut good = 0;
+        for (p, row) in leaves.chunks(f.n_trees()).enumerate() {
+            let v = f.leaf_votes(0, row[0] as usize)[0];
+            let e = ((v.offset[0] - off[3 * p]).powi(2) + (v.offset[1] - off[3 * p + 1]).powi(2)).sqrt();
+            let a = crate::tree::quat_angle(&v.rotation, &crate::tree::quat_angle_ref(&rot[4 * p..4 * p + 4]));
+            if e < 0.03 && a < 0.1 {
+                good += 1;
+            }
+        }
+        assert!(good as f64 > 0.9 * parts.len() as f64, "{good} of {}", parts.len());
+        let votes = f.part_votes(&store, &parts[..5]).unwrap();
+        assert!(votes.iter().all(|v| v.vote.weight > 0.0 && v.vote.weight <= 1.0));
+    }
+
+    #[test]
+    fn deterministic_across_thread_counts() {
+        let (store, parts, off, rot) = toy(2);
+        let data = TrainingSet {
+            store: &store,
+            parts: &parts,
+            targets: RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None },
+        };
+        let p = ForestParams { max_score_samples: 300, bag_fraction: 0.7, ..toy_params() };
+        let a = Forest::fit(&p, &data, "{}", Some(1)).unwrap().to_bytes();
+        let b = Forest::fit(&p, &data, "{}", Some(2)).unwrap().to_bytes();
+        assert_eq!(a, b);
+        let c = Forest::fit(&ForestParams { seed: 1, ..p }, &data, "{}", Some(2)).unwrap().to_bytes();
+        assert_ne!(a, c);
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let (store, parts, off, rot) = toy(1);
+        let raw = RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None };
+        let mut bad_parts = parts.clone();
+        bad_parts[3] = [5, 0, 0];
+        let data = TrainingSet { store: &store, parts: &bad_parts, targets: raw };
+        assert!(matches!(Forest::fit(&toy_params(), &data, "", None), Err(IsaError::InvalidInput(_))));
+        let data = TrainingSet { store: &store, parts: &parts, targets: raw };
+        let p = ForestParams { quality: crate::params::Quality::Q1Q2, ..toy_params() };
+        let e = Forest::fit(&p, &data, "", None).unwrap_err().to_string();
+        assert!(e.contains("link_angles"), "{e}");
+        let mut nan = off.clone();
+        nan[7] = f32::NAN;
+        let data = TrainingSet { store: &store, parts: &parts, targets: RawTargets { offsets: &nan, ..raw } };
+        let e = Forest::fit(&toy_params(), &data, "", None).unwrap_err().to_string();
+        assert!(e.contains("offsets[2, 1]"), "{e}");
+    }
+}

@@ -1,0 +1,283 @@
+//! One randomised tree: the builder (breadth-first, flat node array) and traversal.
+//!
+//! Stopping: a node becomes a leaf at `max_depth`, with fewer than `min_samples_split` parts,
+//! when no candidate threshold leaves `min_samples_leaf` scored parts on each side, or when the
+//! best total gain is below `min_gain`.
+//!
+//! Node ids are assigned breadth-first (root 0, children of a split at `child` and `child + 1`),
+//! so a node's random stream `mix(seed, tree, node id)` does not depend on scheduling.
+//!
+//! ## Leaf votes
+//! A leaf keeps at most `leaf_modes` weighted [`Vote`]s summarising the SSC offsets `Δx` and
+//! rotations `q` of the training parts that reached it: on at most `leaf_max_points` of them (an
+//! even-stride subset), with the joint distance
+//! `d² = |Δx_i − Δx_j|² / h_x² + angle(q_i, q_j)² / h_θ²`, each point gets the kernel density
+//! `Σ_j exp(−d²/2)`; in decreasing density the densest unassigned point opens a mode that takes
+//! every unassigned point within `d² ≤ 4`. A mode's vote is the mean offset of its members,
+//! their sign-aligned normalised mean quaternion (w ≥ 0) and `weight = members / points`, so the
+//! weights of a leaf sum to at most 1 (less when points were left out of every mode).
+
+use rand::seq::index::sample;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::criterion::{Criterion, Targets};
+use crate::depth::{DepthStore, Part};
+use crate::features::Feature;
+use crate::params::ForestParams;
+use crate::rng::mix;
+use crate::splitter::{best_split, SplitConfig};
+
+/// A node of the flat array. Split: `f < threshold` goes to `child`, otherwise `child + 1`.
+/// Leaf: `child` is the leaf index.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    pub feature: Feature,
+    pub threshold: f32,
+    pub child: u32,
+    pub is_leaf: bool,
+}
+
+/// One weighted vote mode of a leaf.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Vote {
+    /// Fraction of the leaf's (clustered) training parts supporting this mode, in (0, 1].
+    pub weight: f32,
+    /// SSC offset Δx (camera frame, metres): SSC = part's 3D point + offset.
+    pub offset: [f32; 3],
+    /// Object rotation in the camera frame, unit quaternion (w, x, y, z) with w ≥ 0.
+    pub rotation: [f32; 4],
+}
+
+/// A trained tree.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Tree {
+    pub nodes: Vec<Node>,
+    /// Leaf `l` owns `votes[leaf_offsets[l]..leaf_offsets[l + 1]]`.
+    pub leaf_offsets: Vec<u32>,
+    pub votes: Vec<Vote>,
+}
+
+impl Tree {
+    pub fn n_leaves(&self) -> usize {
+        self.leaf_offsets.len().saturating_sub(1)
+    }
+
+    /// Votes of leaf `leaf` (empty if out of range).
+    pub fn leaf_votes(&self, leaf: usize) -> &[Vote] {
+        if leaf + 1 >= self.leaf_offsets.len() {
+            return &[];
+        }
+        &self.votes[self.leaf_offsets[leaf] as usize..self.leaf_offsets[leaf + 1] as usize]
+    }
+
+    /// Leaf index reached by a part (the part must be valid for `store`).
+    #[inline]
+    pub fn leaf_of(&self, store: &DepthStore, p: &Part) -> u32 {
+        let img = store.image(p[0] as usize);
+        let d = img.get(p[1], p[2]);
+        let mut i = 0usize;
+        loop {
+            let nd = &self.nodes[i];
+            if nd.is_leaf {
+                return nd.child;
+            }
+            let f = if d == 0 { 0.0 } else { nd.feature.eval_at(&img, p[1], p[2], d) };
+            i = nd.child as usize + (f >= nd.threshold) as usize;
+        }
+    }
+
+    /// Depth of the deepest leaf.
+    pub fn depth(&self) -> usize {
+        let mut depth = vec![0usize; self.nodes.len()];
+        let mut best = 0;
+        for i in 0..self.nodes.len() {
+            let nd = &self.nodes[i];
+            best = best.max(depth[i]);
+            if !nd.is_leaf {
+                depth[nd.child as usize] = depth[i] + 1;
+                depth[nd.child as usize + 1] = depth[i] + 1;
+            }
+        }
+        best
+    }
+}
+
+/// Everything a tree builder reads.
+pub struct TrainContext<'a> {
+    pub params: &'a ForestParams,
+    pub store: &'a DepthStore,
+    pub parts: &'a [Part],
+    /// Raw `(n, 3)` offsets and `(n, 4)` quaternions (for leaf votes).
+    pub offsets: &'a [f32],
+    pub rotations: &'a [f32],
+    pub targets: &'a Targets,
+    pub crit: &'a Criterion,
+}
+
+enum Outcome {
+    Leaf(Vec<Vote>),
+    Split { feature: Feature, threshold: f32, left: Vec<u32>, right: Vec<u32> },
+}
+
+/// Random feature candidates of a node.
+pub fn draw_candidates(rng: &mut ChaCha8Rng, n: usize, max_offset: f32) -> Vec<Feature> {
+    (0..n)
+        .map(|_| Feature {
+            u: [rng.random_range(-max_offset..=max_offset), rng.random_range(-max_offset..=max_offset)],
+            v: [rng.random_range(-max_offset..=max_offset), rng.random_range(-max_offset..=max_offset)],
+        })
+        .collect()
+}
+
+fn process_node(ctx: &TrainContext<'_>, tree: usize, node_id: usize, depth: usize, idx: Vec<u32>) -> Outcome {
+    let p = ctx.params;
+    if depth >= p.max_depth || idx.len() < p.min_samples_split {
+        return Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p));
+    }
+    let node_seed = mix(&[p.seed, tree as u64, node_id as u64]);
+    let mut rng = ChaCha8Rng::seed_from_u64(node_seed);
+    let cands = draw_candidates(&mut rng, p.n_candidates, p.max_offset);
+    let subset: Vec<u32> = if idx.len() > p.max_score_samples {
+        let mut pick = sample(&mut rng, idx.len(), p.max_score_samples).into_vec();
+        pick.sort_unstable();
+        pick.into_iter().map(|k| idx[k]).collect()
+    } else {
+        idx.clone()
+    };
+    let store = ctx.store;
+    let parts = ctx.parts;
+    let feat = |c: usize, i: u32| cands[c].eval(store, &parts[i as usize]);
+    let cfg = SplitConfig { n_thresholds: p.n_thresholds, min_samples_leaf: p.min_samples_leaf, parallel: true };
+    let best = best_split(ctx.crit, ctx.targets, &subset, cands.len(), &feat, &cfg, node_seed);
+    drop(subset);
+    match best {
+        Some(b) if b.gain.is_finite() && b.gain >= p.min_gain => {
+            let f = cands[b.candidate];
+            let (left, right): (Vec<u32>, Vec<u32>) =
+                idx.iter().partition(|&&i| f.eval(store, &parts[i as usize]) < b.threshold);
+            if left.is_empty() || right.is_empty() {
+                return Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p));
+            }
+            Outcome::Split { feature: f, threshold: b.threshold, left, right }
+        }
+        _ => Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p)),
+    }
+}
+
+/// Grows tree number `tree` on the parts `bag` (global indices, ascending).
+pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
+    let placeholder = Node { feature: Feature { u: [0.0; 2], v: [0.0; 2] }, threshold: 0.0, child: 0, is_leaf: true };
+    let mut t = Tree { nodes: vec![placeholder], leaf_offsets: vec![0], votes: Vec::new() };
+    let mut frontier: Vec<(usize, Vec<u32>)> = vec![(0, bag)];
+    let mut depth = 0;
+    while !frontier.is_empty() {
+        let outcomes: Vec<(usize, Outcome)> = frontier
+            .into_par_iter()
+            .map(|(id, idx)| (id, process_node(ctx, tree, id, depth, idx)))
+            .collect();
+        let mut next = Vec::new();
+        for (id, out) in outcomes {
+            match out {
+                Outcome::Leaf(votes) => {
+                    let leaf = t.n_leaves() as u32;
+                    t.votes.extend_from_slice(&votes);
+                    t.leaf_offsets.push(t.votes.len() as u32);
+                    t.nodes[id] = Node { child: leaf, ..placeholder };
+                }
+                Outcome::Split { feature, threshold, left, right } => {
+                    let child = t.nodes.len();
+                    t.nodes.push(placeholder);
+                    t.nodes.push(placeholder);
+                    t.nodes[id] = Node { feature, threshold, child: child as u32, is_leaf: false };
+                    next.push((child, left));
+                    next.push((child + 1, right));
+                }
+            }
+        }
+        frontier = next;
+        depth += 1;
+    }
+    t
+}
+
+#[inline]
+fn quat_norm(q: &[f32]) -> [f32; 4] {
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let s = if q[0] < 0.0 { -1.0 / n } else { 1.0 / n };
+    [q[0] * s, q[1] * s, q[2] * s, q[3] * s]
+}
+
+/// A quaternion normalised with w ≥ 0 (as stored in votes).
+pub fn quat_angle_ref(q: &[f32]) -> [f32; 4] {
+    quat_norm(q)
+}
+
+/// Angle (radians) between two unit quaternions' rotations.
+#[inline]
+pub fn quat_angle(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let dot = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]).abs().min(1.0);
+    2.0 * dot.acos()
+}
+
+/// Compresses the votes of the parts `idx` into at most `leaf_modes` weighted modes.
+pub fn leaf_modes(idx: &[u32], offsets: &[f32], rotations: &[f32], p: &ForestParams) -> Vec<Vote> {
+    if idx.is_empty() {
+        return Vec::new();
+    }
+    let n = idx.len().min(p.leaf_max_points);
+    let pts: Vec<usize> = (0..n).map(|i| idx[i * idx.len() / n] as usize).collect();
+    let off: Vec<[f32; 3]> = pts.iter().map(|&k| [offsets[3 * k], offsets[3 * k + 1], offsets[3 * k + 2]]).collect();
+    let q: Vec<[f32; 4]> = pts.iter().map(|&k| quat_norm(&rotations[4 * k..4 * k + 4])).collect();
+    let (ihx2, iht2) = (1.0 / (p.vote_bandwidth_offset * p.vote_bandwidth_offset), 1.0 / (p.vote_bandwidth_rotation * p.vote_bandwidth_rotation));
+    let mut d2 = vec![0f32; n * n];
+    for i in 0..n {
+        for j in i + 1..n {
+            let dx = (off[i][0] - off[j][0]).powi(2) + (off[i][1] - off[j][1]).powi(2) + (off[i][2] - off[j][2]).powi(2);
+            let a = quat_angle(&q[i], &q[j]);
+            let v = dx * ihx2 + a * a * iht2;
+            d2[i * n + j] = v;
+            d2[j * n + i] = v;
+        }
+    }
+    let dens: Vec<f32> = (0..n).map(|i| d2[i * n..(i + 1) * n].iter().map(|&v| (-0.5 * v).exp()).sum()).collect();
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| dens[b].total_cmp(&dens[a]).then(a.cmp(&b)));
+    let mut assigned = vec![false; n];
+    let mut votes = Vec::new();
+    for &c in &order {
+        if votes.len() >= p.leaf_modes {
+            break;
+        }
+        if assigned[c] {
+            continue;
+        }
+        let mut cnt = 0usize;
+        let mut so = [0f64; 3];
+        let mut sq = [0f64; 4];
+        for j in 0..n {
+            if !assigned[j] && (j == c || d2[c * n + j] <= 4.0) {
+                assigned[j] = true;
+                cnt += 1;
+                for k in 0..3 {
+                    so[k] += off[j][k] as f64;
+                }
+                let sgn = if q[j].iter().zip(&q[c]).map(|(a, b)| a * b).sum::<f32>() < 0.0 { -1.0 } else { 1.0 };
+                for k in 0..4 {
+                    sq[k] += sgn * q[j][k] as f64;
+                }
+            }
+        }
+        let qn = (sq.iter().map(|v| v * v).sum::<f64>()).sqrt();
+        let rq = if qn > 1e-12 { [sq[0] / qn, sq[1] / qn, sq[2] / qn, sq[3] / qn] } else { [1.0, 0.0, 0.0, 0.0] };
+        let rq = quat_norm(&[rq[0] as f32, rq[1] as f32, rq[2] as f32, rq[3] as f32]);
+        votes.push(Vote {
+            weight: cnt as f32 / n as f32,
+            offset: [(so[0] / cnt as f64) as f32, (so[1] / cnt as f64) as f32, (so[2] / cnt as f64) as f32],
+            rotation: rq,
+        });
+    }
+    votes.sort_by(|a, b| b.weight.total_cmp(&a.weight));
+    votes
+}
