@@ -11,6 +11,11 @@ GL facts this module relies on (measured on the project machine, see issue #2):
 - pyrender renders with 4x MSAA on EGL and copies (not resolves) the depth buffer, which moves mask
   edges by about a pixel; we force single-sample buffers, which is also faster.
 - Do not fork a process that holds a GL context (use the "spawn" start method).
+- pyrender culls back faces in depth-only mode whatever the material says, and ModelNet10 windings
+  are inconsistent: every triangle is uploaded with both windings.
+- Deleting a pyrender EGL context terminates the EGL display that every other context of the
+  process shares, so all DepthRenderers share ONE GL context per process (:func:`release_gl`
+  frees it).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from isa.camera import KINECT_V1, Intrinsics
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 _pyrender = None
+_gl = None  # the process's shared pyrender.OffscreenRenderer
 
 
 def _import_pyrender():
@@ -49,6 +55,24 @@ def _import_pyrender():
     return _pyrender
 
 
+def _shared_gl(width: int, height: int):
+    """The process's one offscreen GL context, sized for the next frame."""
+    global _gl
+    pyrender = _import_pyrender()
+    if _gl is None:
+        _gl = pyrender.OffscreenRenderer(width, height)
+    _gl.viewport_width, _gl.viewport_height = width, height
+    return _gl
+
+
+def release_gl() -> None:
+    """Free the shared GL context (a later render creates a new one)."""
+    global _gl
+    if _gl is not None:
+        _gl.delete()
+        _gl = None
+
+
 class DepthRenderer:
     """Reusable offscreen depth renderer for one camera (any :class:`~isa.camera.Intrinsics`).
 
@@ -59,12 +83,14 @@ class DepthRenderer:
     Meshes are uploaded once and cached by ``id`` (up to ``cache_size``), so rendering many views
     of the same mesh only moves the object. Both faces of every triangle are drawn (ModelNet10
     windings are inconsistent). ``znear``/``zfar`` bound the rendered depth range in metres.
+    All renderers of a process share one GL context; :meth:`close` only drops this renderer's
+    scene and meshes.
     """
 
     def __init__(self, intrinsics: Intrinsics = KINECT_V1, znear: float = 0.05, zfar: float = 20.0, cache_size: int = 8):
         pyrender = _import_pyrender()
         self.intrinsics = intrinsics
-        self._renderer = pyrender.OffscreenRenderer(intrinsics.width, intrinsics.height)
+        self._renderer = _shared_gl(intrinsics.width, intrinsics.height)
         self._scene = pyrender.Scene(bg_color=[0, 0, 0, 0], ambient_light=[1.0, 1.0, 1.0])
         cam = pyrender.IntrinsicsCamera(
             fx=intrinsics.fx, fy=intrinsics.fy, cx=intrinsics.cx + 0.5, cy=intrinsics.cy + 0.5, znear=znear, zfar=zfar
@@ -83,7 +109,14 @@ class DepthRenderer:
         if key not in self._cache:
             if len(self._cache) >= self._cache_size:
                 self._cache.pop(next(iter(self._cache)))
-            pm = pyrender.Mesh.from_trimesh(mesh, material=self._material, smooth=False)
+            f = np.asarray(mesh.faces, dtype=np.uint32)
+            prim = pyrender.Primitive(
+                positions=np.asarray(mesh.vertices, dtype=np.float32),
+                indices=np.concatenate([f, f[:, ::-1]]),  # both windings: nothing is culled
+                material=self._material,
+                mode=pyrender.constants.GLTF.TRIANGLES,
+            )
+            pm = pyrender.Mesh([prim])
             self._cache[key] = (mesh, pm)  # keep the mesh alive so that its id stays unique
         if self._node_key != key:
             if self._node is not None:
@@ -99,14 +132,19 @@ class DepthRenderer:
         T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
         node = self._mesh_node(mesh)
         self._scene.set_pose(node, _CV_TO_GL @ T)
-        depth = self._renderer.render(self._scene, flags=_pyrender.RenderFlags.DEPTH_ONLY)
+        if self._renderer is None:
+            raise RuntimeError("DepthRenderer.render after close()")
+        gl = _shared_gl(self.intrinsics.width, self.intrinsics.height)
+        depth = gl.render(self._scene, flags=_pyrender.RenderFlags.DEPTH_ONLY)
         depth = np.ascontiguousarray(depth, dtype=np.float32)
         return depth, depth > 0
 
     def close(self) -> None:
-        """Release the GL context (safe to call twice)."""
+        """Drop this renderer's scene and meshes (safe to call twice); the shared context stays."""
         if self._renderer is not None:
-            self._renderer.delete()
+            if self._node is not None:
+                self._scene.remove_node(self._node)
+                self._node, self._node_key = None, None
             self._renderer = None
             self._cache.clear()
 
@@ -118,6 +156,6 @@ class DepthRenderer:
 
 
 def render_depth(mesh: trimesh.Trimesh, R, t, intrinsics: Intrinsics = KINECT_V1) -> tuple[np.ndarray, np.ndarray]:
-    """One-off render (creates and frees a context: use :class:`DepthRenderer` for many frames)."""
+    """One-off render (sets up a scene each call: use :class:`DepthRenderer` for many frames)."""
     with DepthRenderer(intrinsics) as r:
         return r.render(mesh, R, t)
