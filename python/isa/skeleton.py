@@ -364,11 +364,11 @@ def _smooth(poly: np.ndarray, passes: int = 2) -> np.ndarray:
 
 def extract_skeleton(
     mesh: trimesh.Trimesh,
-    resolution: int = 96,
+    resolution: int = 80,
     spacing: float = 0.06,
     prune: float = 0.06,
     merge: float = 0.05,
-    cover: float = 0.18,
+    cover: float = 0.15,
     seed: int = 0,
 ) -> SkeletonGraph:
     """Curve skeleton of ``mesh`` as a :class:`SkeletonGraph` in the mesh's own coordinates.
@@ -379,7 +379,8 @@ def extract_skeleton(
     free end is pruned as a spur, and the length below which a branch between two junctions is
     contracted. ``seed`` fixes the surface sampling (the result is deterministic given it).
 
-    ``meta`` holds ``kind`` (per node: "end", "junction", "inner"), ``pitch`` and ``diameter``.
+    ``meta`` holds ``kind`` (per node: "end", "junction", "inner"), ``pitch``, ``diameter`` (the
+    bounding-box diagonal) and ``bounds`` (the mesh's axis-aligned bounds, for matching).
     """
     mesh = _as_mesh(mesh)
     if int(resolution) < 16:
@@ -469,7 +470,13 @@ def extract_skeleton(
     nodes_arr = np.array(nodes, float).reshape(-1, 3)
     links_arr = np.array(links, np.int64).reshape(-1, 2)
     return SkeletonGraph(
-        nodes_arr, links_arr, None, {"kind": kinds, "pitch": pitch, "diameter": diam, "method": "voxel-thinning"}
+        nodes_arr, links_arr, None, {
+            "kind": kinds,
+            "pitch": pitch,
+            "diameter": diam,
+            "bounds": np.asarray(mesh.bounds, float).tolist(),
+            "method": "voxel-thinning",
+        }
     )
 
 
@@ -500,7 +507,7 @@ def _keep_largest_component(g: _Graph) -> None:
             del g.pos[n]
 
 
-def solid_centre_of_mass(mesh: trimesh.Trimesh, resolution: int = 96, seed: int = 0) -> np.ndarray:
+def solid_centre_of_mass(mesh: trimesh.Trimesh, resolution: int = 80, seed: int = 0) -> np.ndarray:
     """Centre of mass of ``mesh`` taken as a uniform solid, from the same voxelisation as the skeleton.
 
     Robust where ``mesh.center_mass`` is not (open, self-overlapping meshes give a meaningless
