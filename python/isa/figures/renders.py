@@ -42,13 +42,12 @@ def contact_sheet(
     for ax in axes.ravel():
         ax.axis("off")
     im = None
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="white")  # missing depth shows white
     for i, d in enumerate(depths):
         r, c = (i // cols) * rows_per, i % cols
         m = masks[i] if masks is not None else d > 0
         sl = _crop_slices(m if m.any() else d > 0, d.shape) if crop else (slice(None), slice(None))
         shown = np.ma.masked_where(d[sl] <= 0, d[sl])
-        cmap = matplotlib.colormaps["viridis"].copy()
-        cmap.set_bad("white")
         im = axes[r, c].imshow(shown, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest")
         if titles is not None:
             axes[r, c].set_title(titles[i], fontsize=7)
