@@ -1,0 +1,154 @@
+"""Semantically Selected Centers (paper Sec. 3.1): one object-frame origin per category.
+
+The paper's procedure, per category:
+
+1. for each instance, its skeleton (here: matched to the category template, so node i is the same
+   place on every instance) and its centre of mass (COM); the distances between the nodes and
+   the COM;
+2. across instances, the most repetitive node: the node that is closest to the COM on the most
+   instances (the paper notes it is also the node closest to the COMs);
+3. if several nodes tie, the SSC interpolates between them (equal weights).
+
+The SSC is then a fixed convex combination of template nodes, ``weights @ matched.nodes``, so it
+is defined on every instance, seen or unseen, as soon as its skeleton is matched. It replaces the
+bounding-box centre of :func:`isa.meshes.object_origin`: :meth:`CategorySSC.origin` is the drop-in
+(``mesh -> (3,) point in the mesh's coordinates``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from isa.matching import match_skeleton
+from isa.skeleton import extract_skeleton, solid_centre_of_mass
+from isa.skeleton_graph import SkeletonGraph
+
+
+def centre_of_mass(mesh: trimesh.Trimesh, resolution: int = 80, seed: int = 0) -> np.ndarray:
+    """COM of ``mesh`` as a uniform solid (robust to open/overlapping ModelNet meshes)."""
+    return solid_centre_of_mass(mesh, resolution, seed)
+
+
+@dataclass
+class SSC:
+    """The category's SSC as weights over template nodes (one-hot, or equal over tied nodes)."""
+
+    weights: np.ndarray
+    votes: np.ndarray
+    names: list[str] | None = None
+    mean_distance: np.ndarray | None = None  # per node, mean distance to the COM over instances
+
+    def __post_init__(self) -> None:
+        self.weights = np.asarray(self.weights, float).reshape(-1)
+        self.votes = np.asarray(self.votes, int).reshape(-1)
+        if self.weights.shape != self.votes.shape:
+            raise ValueError(f"SSC: {self.weights.shape[0]} weights for {self.votes.shape[0]} votes")
+        if not np.isclose(self.weights.sum(), 1.0) or np.any(self.weights < 0):
+            raise ValueError("SSC: weights must be non-negative and sum to 1")
+
+    @property
+    def nodes(self) -> np.ndarray:
+        """Indices of the template nodes the SSC is made of."""
+        return np.flatnonzero(self.weights > 0)
+
+    def point(self, matched: SkeletonGraph) -> np.ndarray:
+        """The SSC of one instance from its matched skeleton (same coordinates as its nodes)."""
+        if len(matched.nodes) != len(self.weights):
+            raise ValueError(f"matched: has {len(matched.nodes)} nodes, the SSC is over {len(self.weights)} template nodes")
+        return self.weights @ matched.nodes
+
+    def to_dict(self) -> dict:
+        d = {"weights": self.weights.tolist(), "votes": self.votes.tolist(), "names": self.names}
+        if self.mean_distance is not None:
+            d["mean_distance"] = np.asarray(self.mean_distance).tolist()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SSC":
+        md = d.get("mean_distance")
+        return cls(np.array(d["weights"]), np.array(d["votes"]), d.get("names"), None if md is None else np.array(md))
+
+
+def select_ssc(matched: Sequence[SkeletonGraph], coms: Sequence, tie_tolerance: int = 0) -> SSC:
+    """The paper's SSC procedure over a category's instances.
+
+    ``matched``: each instance's skeleton matched to the template (same node count and order);
+    ``coms``: each instance's COM in the same coordinates. Nodes marked unmatched in
+    ``meta["matched"]`` (a part missing on that instance) do not vote on it. Nodes whose vote count
+    is within ``tie_tolerance`` of the top count are tied and share the SSC equally.
+    """
+    if len(matched) == 0:
+        raise ValueError("matched: need at least one instance")
+    if len(coms) != len(matched):
+        raise ValueError(f"coms: {len(coms)} given for {len(matched)} instances")
+    if tie_tolerance < 0:
+        raise ValueError(f"tie_tolerance: must be >= 0, got {tie_tolerance}")
+    n = len(matched[0].nodes)
+    votes = np.zeros(n, int)
+    dist_sum = np.zeros(n)
+    dist_cnt = np.zeros(n)
+    for m, com in zip(matched, coms):
+        if len(m.nodes) != n:
+            raise ValueError(f"matched: instances have {len(m.nodes)} and {n} nodes; match them to one template first")
+        com = np.asarray(com, float).reshape(3)
+        d = np.linalg.norm(m.nodes - com, axis=1)
+        ok = np.asarray(m.meta.get("matched", [True] * n), bool)
+        if not ok.any():
+            continue
+        dist_sum[ok] += d[ok]
+        dist_cnt[ok] += 1
+        votes[np.flatnonzero(ok)[np.argmin(d[ok])]] += 1
+    if votes.sum() == 0:
+        raise ValueError("matched: no instance has a matched node")
+    tied = votes >= votes.max() - tie_tolerance
+    w = tied / tied.sum()
+    md = np.where(dist_cnt > 0, dist_sum / np.maximum(dist_cnt, 1), np.nan)
+    return SSC(w, votes, matched[0].names, md)
+
+
+@dataclass
+class CategorySSC:
+    """A category's template and SSC: what turns any instance mesh into its object-frame origin."""
+
+    template: SkeletonGraph
+    ssc: SSC
+    extract_kw: dict = field(default_factory=dict)
+
+    def skeleton(self, mesh: trimesh.Trimesh) -> SkeletonGraph:
+        """``mesh``'s skeleton matched to the template, in the mesh's coordinates."""
+        return match_skeleton(extract_skeleton(mesh, **self.extract_kw), self.template, mesh.bounds)
+
+    def origin(self, mesh: trimesh.Trimesh) -> np.ndarray:
+        """Drop-in for :func:`isa.meshes.object_origin`: the SSC of ``mesh`` in its coordinates."""
+        return self.ssc.point(self.skeleton(mesh))
+
+    def save(self, path: str | Path) -> None:
+        d = {"template": self.template.to_dict(), "ssc": self.ssc.to_dict(), "extract_kw": self.extract_kw}
+        Path(path).write_text(json.dumps(d))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "CategorySSC":
+        d = json.loads(Path(path).read_text())
+        return cls(SkeletonGraph.from_dict(d["template"]), SSC.from_dict(d["ssc"]), d.get("extract_kw", {}))
+
+
+def fit_category_ssc(
+    meshes: Sequence[trimesh.Trimesh], template: SkeletonGraph, extract_kw: dict | None = None
+) -> tuple[CategorySSC, list[SkeletonGraph], np.ndarray]:
+    """Skeletons, matching, COMs and the SSC for a category's training meshes.
+
+    Returns the :class:`CategorySSC`, the matched skeletons and the (n, 3) COMs (all in each
+    mesh's own coordinates).
+    """
+    if len(meshes) == 0:
+        raise ValueError("meshes: need at least one training mesh")
+    kw = dict(extract_kw or {})
+    matched = [match_skeleton(extract_skeleton(m, **kw), template, m.bounds) for m in meshes]
+    coms = np.array([centre_of_mass(m, kw.get("resolution", 80), kw.get("seed", 0)) for m in meshes])
+    return CategorySSC(template, select_ssc(matched, coms), kw), matched, coms
