@@ -29,6 +29,11 @@
 //! Everything is deterministic: float reductions run in a fixed order, parallel work is per
 //! seed/mode and collected in order, so results do not depend on the number of threads.
 
+pub mod predict;
+pub mod synth;
+
+pub use predict::{depth_m_to_mm, image_votes, predict, DepthImage, ImageVotes, Intrinsics, PredictParams};
+
 use crate::error::{IsaError, Result};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -1,0 +1,536 @@
+//! Whole-image inference (paper Sec. 3.4): parts on a stride over every valid pixel of a depth
+//! image (no segmentation, no box proposals), each passed down every tree; every leaf vote
+//! `(Δx, q, w)` of a part at pixel `(u, v)` with depth `z` becomes the pose vote
+//! `(K⁻¹ [u, v, 1]ᵀ z + Δx, q, w / |F|)` (Eq. 13 averages over the trees), and
+//! [`find_modes`](super::find_modes) turns the votes into ranked hypotheses.
+//!
+//! Traversal runs in parallel over fixed chunks of parts (trees outer, parts inner inside a chunk,
+//! so a tree's top levels stay in cache); chunks are concatenated in order, so the votes and the
+//! hypotheses do not depend on the number of threads.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::{find_modes, Hypothesis, PoseVote, VoteParams};
+use crate::depth::{sample_parts, DepthStore, Part};
+use crate::error::{IsaError, Result};
+use crate::forest::Forest;
+
+/// Pinhole intrinsics (pixels), OpenCV convention: pixel centres at integer `(u, v)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Intrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl Intrinsics {
+    /// Kinect v1 as in `isa.camera.KINECT_V1` (640x480).
+    pub const KINECT_V1: Intrinsics = Intrinsics {
+        fx: 525.0,
+        fy: 525.0,
+        cx: 319.5,
+        cy: 239.5,
+    };
+
+    /// From a row-major 3x3 camera matrix `[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]` (skew must be 0).
+    pub fn from_matrix(k: [[f64; 3]; 3]) -> Result<Intrinsics> {
+        let ok = k[0][1].abs() < 1e-9 && k[1][0].abs() < 1e-9 && k[2] == [0.0, 0.0, 1.0];
+        if !ok {
+            return Err(IsaError::InvalidInput(format!(
+                "K: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {k:?}"
+            )));
+        }
+        let i = Intrinsics {
+            fx: k[0][0],
+            fy: k[1][1],
+            cx: k[0][2],
+            cy: k[1][2],
+        };
+        i.validate()?;
+        Ok(i)
+    }
+
+    /// Focal lengths finite and positive, principal point finite.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.fx.is_finite() && self.fx > 0.0 && self.fy.is_finite() && self.fy > 0.0) {
+            return Err(IsaError::InvalidInput(format!(
+                "intrinsics: focal lengths must be finite and > 0, got fx={} fy={}",
+                self.fx, self.fy
+            )));
+        }
+        if !(self.cx.is_finite() && self.cy.is_finite()) {
+            return Err(IsaError::InvalidInput(format!(
+                "intrinsics: principal point must be finite, got cx={} cy={}",
+                self.cx, self.cy
+            )));
+        }
+        Ok(())
+    }
+
+    /// 3D point (camera frame, metres) of pixel `(u, v)` at depth `z` metres.
+    #[inline]
+    pub fn back_project(&self, u: f64, v: f64, z: f64) -> [f64; 3] {
+        [(u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z]
+    }
+}
+
+/// Parameters of [`predict`] and [`image_votes`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PredictParams {
+    /// Parts on every `stride`-th pixel in u and v (with depth > 0). Default 4: about 19k parts
+    /// on a fully valid 640x480 frame; use 2 for small objects.
+    pub stride: usize,
+    /// Pixels nearer than this (metres) are not parts. Default 0.
+    pub min_depth: f32,
+    /// Pixels farther than this (metres) are not parts; `None` = no limit. Default `None`.
+    pub max_depth: Option<f32>,
+    /// Leaf votes of smaller weight (the leaf's share, before dividing by the number of trees)
+    /// are dropped. Default 0 (keep all).
+    pub min_leaf_weight: f32,
+    /// Mode finding.
+    pub vote: VoteParams,
+}
+
+impl Default for PredictParams {
+    fn default() -> Self {
+        Self {
+            stride: 4,
+            min_depth: 0.0,
+            max_depth: None,
+            min_leaf_weight: 0.0,
+            vote: VoteParams::default(),
+        }
+    }
+}
+
+impl PredictParams {
+    /// Checks every field (and the vote parameters); the error names the parameter.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(IsaError::InvalidParameter(m));
+        if self.stride == 0 || self.stride > 1024 {
+            return bad(format!("stride must be in 1..=1024 pixels, got {}", self.stride));
+        }
+        if !(self.min_depth.is_finite() && self.min_depth >= 0.0) {
+            return bad(format!(
+                "min_depth must be finite and >= 0 metres, got {}",
+                self.min_depth
+            ));
+        }
+        if let Some(m) = self.max_depth {
+            if !(m.is_finite() && m > self.min_depth) {
+                return bad(format!(
+                    "max_depth must be finite and > min_depth ({}), got {m}",
+                    self.min_depth
+                ));
+            }
+        }
+        if !(self.min_leaf_weight.is_finite() && (0.0..=1.0).contains(&self.min_leaf_weight)) {
+            return bad(format!(
+                "min_leaf_weight must be in [0, 1], got {}",
+                self.min_leaf_weight
+            ));
+        }
+        self.vote.validate()
+    }
+}
+
+/// A borrowed depth image: uint16 millimetres, row-major `height x width`, 0 = missing.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthImage<'a> {
+    pub data: &'a [u16],
+    pub width: usize,
+    pub height: usize,
+}
+
+impl<'a> DepthImage<'a> {
+    /// Checks the size; the error says what was expected.
+    pub fn new(data: &'a [u16], width: usize, height: usize) -> Result<Self> {
+        if width == 0 || height == 0 || data.len() != width * height {
+            return Err(IsaError::InvalidInput(format!(
+                "depth: {} pixels for a {height}x{width} image",
+                data.len()
+            )));
+        }
+        Ok(Self { data, width, height })
+    }
+}
+
+/// Metres (float) to millimetres (uint16): rounds; non-finite, `<= 0` or `>= 65.5355` m become 0
+/// (missing), as in BOP PNGs.
+pub fn depth_m_to_mm(depth_m: &[f32]) -> Vec<u16> {
+    depth_m
+        .iter()
+        .map(|&d| {
+            let mm = (f64::from(d) * 1000.0).round();
+            if mm.is_finite() && mm >= 1.0 && mm <= 65535.0 {
+                mm as u16
+            } else {
+                0
+            }
+        })
+        .collect()
+}
+
+/// The votes of one image, with where each came from (for plots and diagnostics).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ImageVotes {
+    pub votes: Vec<PoseVote>,
+    /// Pixel `(u, v)` of the part that cast each vote.
+    pub pixels: Vec<[u32; 2]>,
+    /// Tree index of each vote.
+    pub trees: Vec<u32>,
+    /// Number of parts passed down the forest.
+    pub n_parts: usize,
+}
+
+const CHUNK: usize = 256;
+
+fn parts_of(depth: &DepthImage<'_>, params: &PredictParams) -> Result<(DepthStore, Vec<Part>)> {
+    let mut store = DepthStore::new();
+    store.push(depth.width, depth.height, depth.data)?;
+    let mut parts = sample_parts(&store, params.stride, None, 0)?;
+    let lo = (params.min_depth * 1000.0).ceil().max(1.0) as u32;
+    let hi = params.max_depth.map_or(u32::MAX, |m| (m * 1000.0).floor() as u32);
+    if lo > 1 || hi < u16::MAX as u32 {
+        parts.retain(|p| {
+            let d = u32::from(store.center_depth(p));
+            d >= lo && d <= hi
+        });
+    }
+    Ok((store, parts))
+}
+
+/// Traverses every tree for every part; `meta` also records pixels and trees.
+fn collect_votes(
+    forest: &Forest,
+    store: &DepthStore,
+    parts: &[Part],
+    k: &Intrinsics,
+    params: &PredictParams,
+    meta: bool,
+) -> ImageVotes {
+    let n_trees = forest.n_trees();
+    let inv_trees = if n_trees > 0 { 1.0 / n_trees as f32 } else { 0.0 };
+    let min_w = params.min_leaf_weight;
+    let chunks: Vec<ImageVotes> = parts
+        .par_chunks(CHUNK)
+        .map(|chunk| {
+            // Part centres in 3D, once per chunk.
+            let centres: Vec<[f32; 3]> = chunk
+                .iter()
+                .map(|p| {
+                    let z = f64::from(store.center_depth(p)) * 1e-3;
+                    k.back_project(f64::from(p[1]), f64::from(p[2]), z).map(|c| c as f32)
+                })
+                .collect();
+            let mut out = ImageVotes::default();
+            out.votes.reserve(chunk.len() * n_trees);
+            for (t, tree) in forest.trees.iter().enumerate() {
+                for (p, c) in chunk.iter().zip(&centres) {
+                    let leaf = tree.leaf_of(store, p) as usize;
+                    for v in tree.leaf_votes(leaf) {
+                        if v.weight < min_w {
+                            continue;
+                        }
+                        out.votes.push(PoseVote {
+                            position: [c[0] + v.offset[0], c[1] + v.offset[1], c[2] + v.offset[2]],
+                            rotation: v.rotation,
+                            weight: v.weight * inv_trees,
+                        });
+                        if meta {
+                            out.pixels.push([p[1] as u32, p[2] as u32]);
+                            out.trees.push(t as u32);
+                        }
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    let mut all = ImageVotes {
+        votes: Vec::with_capacity(chunks.iter().map(|c| c.votes.len()).sum()),
+        n_parts: parts.len(),
+        ..Default::default()
+    };
+    for c in chunks {
+        all.votes.extend_from_slice(&c.votes);
+        all.pixels.extend_from_slice(&c.pixels);
+        all.trees.extend_from_slice(&c.trees);
+    }
+    all
+}
+
+/// Every vote of every part of `depth` through every tree of `forest` (for plots): parts on
+/// `params.stride`, votes ordered by chunk of 256 parts, then tree, then part.
+pub fn image_votes(
+    forest: &Forest,
+    depth: &DepthImage<'_>,
+    k: &Intrinsics,
+    params: &PredictParams,
+) -> Result<ImageVotes> {
+    params.validate()?;
+    k.validate()?;
+    let (store, parts) = parts_of(depth, params)?;
+    Ok(collect_votes(forest, &store, &parts, k, params, true))
+}
+
+/// The 6D pose hypotheses of the objects in `depth`, best first (see the module docs).
+///
+/// Errors: bad parameters or intrinsics, a depth buffer whose length is not `width * height`.
+/// An image without valid pixels, or a forest without trees, gives no hypotheses.
+pub fn predict(
+    forest: &Forest,
+    depth: &DepthImage<'_>,
+    k: &Intrinsics,
+    params: &PredictParams,
+) -> Result<Vec<Hypothesis>> {
+    params.validate()?;
+    k.validate()?;
+    let (store, parts) = parts_of(depth, params)?;
+    let votes = collect_votes(forest, &store, &parts, k, params, false);
+    find_modes(&votes.votes, &params.vote)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{quat_angle, synth};
+    use super::*;
+    use crate::criterion::RawTargets;
+    use crate::features::Feature;
+    use crate::forest::TrainingSet;
+    use crate::params::{ForestParams, Quality};
+    use crate::tree::{Node, Tree, Vote};
+
+    /// A forest of `n` one-leaf trees, each leaf voting `votes`.
+    fn constant_forest(n: usize, votes: &[Vote]) -> Forest {
+        let leaf = Node {
+            feature: Feature {
+                u: [0.0; 2],
+                v: [0.0; 2],
+            },
+            threshold: 0.0,
+            child: 0,
+            is_leaf: true,
+        };
+        let tree = Tree {
+            nodes: vec![leaf],
+            leaf_offsets: vec![0, votes.len() as u32],
+            votes: votes.to_vec(),
+        };
+        Forest {
+            params: ForestParams::default(),
+            trees: vec![tree; n],
+            metadata: String::new(),
+            crate_version: crate::VERSION.into(),
+        }
+    }
+
+    const K: Intrinsics = Intrinsics {
+        fx: 100.0,
+        fy: 110.0,
+        cx: 15.5,
+        cy: 11.5,
+    };
+
+    #[test]
+    fn votes_are_back_projected_part_centres_plus_offsets() {
+        let (w, h) = (32usize, 24usize);
+        let depth: Vec<u16> = (0..w * h)
+            .map(|i| if i % 7 == 0 { 0 } else { 1500 + (i % 13) as u16 * 100 })
+            .collect();
+        let leaf_votes = [
+            Vote {
+                weight: 0.75,
+                offset: [0.1, -0.2, 0.3],
+                rotation: [1.0, 0.0, 0.0, 0.0],
+            },
+            Vote {
+                weight: 0.25,
+                offset: [0.0; 3],
+                rotation: [0.0, 1.0, 0.0, 0.0],
+            },
+        ];
+        let forest = constant_forest(4, &leaf_votes);
+        let params = PredictParams {
+            stride: 3,
+            ..Default::default()
+        };
+        let img = DepthImage::new(&depth, w, h).unwrap();
+        let iv = image_votes(&forest, &img, &K, &params).unwrap();
+        let expected_parts: Vec<(usize, usize)> = (0..h)
+            .step_by(3)
+            .flat_map(|v| (0..w).step_by(3).map(move |u| (u, v)))
+            .filter(|&(u, v)| depth[v * w + u] > 0)
+            .collect();
+        assert_eq!(iv.n_parts, expected_parts.len());
+        assert_eq!(iv.votes.len(), expected_parts.len() * 4 * 2);
+        assert_eq!(iv.pixels.len(), iv.votes.len());
+        assert_eq!(iv.trees.len(), iv.votes.len());
+        for ((vote, px), tree) in iv.votes.iter().zip(&iv.pixels).zip(&iv.trees) {
+            let (u, v) = (px[0] as usize, px[1] as usize);
+            assert!(u % 3 == 0 && v % 3 == 0 && *tree < 4);
+            let z = f64::from(depth[v * w + u]) / 1000.0;
+            let x = K.back_project(u as f64, v as f64, z);
+            let lv = if vote.rotation[0] == 1.0 {
+                leaf_votes[0]
+            } else {
+                leaf_votes[1]
+            };
+            for a in 0..3 {
+                assert!((f64::from(vote.position[a]) - (x[a] + f64::from(lv.offset[a]))).abs() < 1e-5);
+            }
+            assert_eq!(vote.weight, lv.weight / 4.0);
+        }
+        // Depth limits and leaf-weight filter.
+        let p2 = PredictParams {
+            stride: 3,
+            min_depth: 1.8,
+            max_depth: Some(2.2),
+            min_leaf_weight: 0.5,
+            ..Default::default()
+        };
+        let iv2 = image_votes(&forest, &img, &K, &p2).unwrap();
+        assert!(iv2.n_parts > 0 && iv2.n_parts < iv.n_parts);
+        assert_eq!(iv2.votes.len(), iv2.n_parts * 4);
+        for px in &iv2.pixels {
+            let d = depth[px[1] as usize * w + px[0] as usize];
+            assert!((1800..=2200).contains(&d));
+        }
+    }
+
+    #[test]
+    fn bad_inputs_are_named() {
+        let forest = constant_forest(1, &[]);
+        let depth = vec![1000u16; 20];
+        let e = DepthImage::new(&depth, 5, 5).unwrap_err().to_string();
+        assert!(e.contains("depth") && e.contains("5x5"), "{e}");
+        let img = DepthImage::new(&depth, 5, 4).unwrap();
+        let bad_k = Intrinsics { fx: 0.0, ..K };
+        assert!(predict(&forest, &img, &bad_k, &PredictParams::default())
+            .unwrap_err()
+            .to_string()
+            .contains("focal"));
+        let p = PredictParams {
+            stride: 0,
+            ..Default::default()
+        };
+        assert!(predict(&forest, &img, &K, &p)
+            .unwrap_err()
+            .to_string()
+            .contains("stride"));
+        let p = PredictParams {
+            max_depth: Some(0.0),
+            ..Default::default()
+        };
+        assert!(predict(&forest, &img, &K, &p)
+            .unwrap_err()
+            .to_string()
+            .contains("max_depth"));
+        // No trees, or no valid pixels: no hypotheses.
+        assert!(predict(&forest, &img, &K, &PredictParams::default())
+            .unwrap()
+            .is_empty());
+        assert!(Intrinsics::from_matrix([[1.0, 0.0, 2.0], [0.0, 1.0, 2.0], [0.0, 0.0, 2.0]]).is_err());
+        assert_eq!(
+            Intrinsics::from_matrix([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]]).unwrap(),
+            Intrinsics::KINECT_V1
+        );
+    }
+
+    #[test]
+    fn metres_to_millimetres() {
+        assert_eq!(
+            depth_m_to_mm(&[0.0, -1.0, f32::NAN, 1.2344, 65.535, 70.0, 0.0004]),
+            vec![0, 0, 0, 1234, 65535, 0, 0]
+        );
+    }
+
+    /// Trains a small forest on views of the synthetic chair; returns it with the intrinsics.
+    pub(crate) fn chair_forest() -> (Forest, Intrinsics, Vec<([[f64; 3]; 3], [f64; 3])>) {
+        let k = Intrinsics {
+            fx: 200.0,
+            fy: 200.0,
+            cx: 79.5,
+            cy: 59.5,
+        };
+        let (w, h) = (160usize, 120usize);
+        let chair = synth::chair();
+        let mut store = DepthStore::new();
+        let mut poses = Vec::new();
+        for i in 0..12 {
+            let az = i as f64 * std::f64::consts::TAU / 12.0;
+            let pose = synth::look_at(az, 0.35, 2.5);
+            store
+                .push(w, h, &synth::render(&chair, pose.0, pose.1, &k, w, h))
+                .unwrap();
+            poses.push(pose);
+        }
+        let parts = sample_parts(&store, 2, Some(400), 7).unwrap();
+        let (mut offsets, mut rotations) = (Vec::new(), Vec::new());
+        for (i, pose) in poses.iter().enumerate() {
+            let mine: Vec<[i32; 3]> = parts.iter().filter(|p| p[0] == i as i32).copied().collect();
+            let img = store.image(i);
+            let (o, r) = synth::targets(&mine, img.data, w, pose.0, pose.1, &k);
+            offsets.extend(o);
+            rotations.extend(r);
+        }
+        let params = ForestParams {
+            n_trees: 4,
+            max_depth: 14,
+            n_candidates: 60,
+            quality: Quality::Q1,
+            min_samples_split: 10,
+            min_samples_leaf: 3,
+            ..Default::default()
+        };
+        let targets = RawTargets {
+            offsets: &offsets,
+            rotations: &rotations,
+            link_angles: None,
+            node_offsets: None,
+        };
+        let data = TrainingSet {
+            store: &store,
+            parts: &parts,
+            targets,
+        };
+        (Forest::fit(&params, &data, "{}", None).unwrap(), k, poses)
+    }
+
+    #[test]
+    fn recovers_the_pose_of_a_training_view_in_a_larger_frame() {
+        let (forest, k, poses) = chair_forest();
+        // The same camera, a 320x240 frame: principal point moved, so the chair sits off-centre.
+        let kk = Intrinsics {
+            cx: 159.5,
+            cy: 119.5,
+            ..k
+        };
+        let params = PredictParams {
+            stride: 2,
+            ..Default::default()
+        };
+        for &i in &[0usize, 5] {
+            let (r, mut t) = poses[i];
+            t[0] += 0.3; // shift sideways too
+            let depth = synth::render(&synth::chair(), r, t, &kk, 320, 240);
+            let img = DepthImage::new(&depth, 320, 240).unwrap();
+            let hyps = predict(&forest, &img, &kk, &params).unwrap();
+            assert!(!hyps.is_empty());
+            let best = &hyps[0];
+            let err_t = (0..3).map(|a| (best.translation[a] - t[a]).powi(2)).sum::<f64>().sqrt();
+            let err_r = quat_angle(best.quaternion, super::super::matrix_to_quat(r)).to_degrees();
+            assert!(err_t < 0.03, "view {i}: translation error {err_t} m, {best:?}");
+            assert!(err_r < 5.0, "view {i}: rotation error {err_r} deg");
+            for w in hyps.windows(2) {
+                assert!(w[0].score >= w[1].score);
+            }
+            // Deterministic, whatever the thread count.
+            let one = crate::forest::with_threads(Some(1), || predict(&forest, &img, &kk, &params).unwrap()).unwrap();
+            assert_eq!(one, hyps);
+        }
+    }
+}
