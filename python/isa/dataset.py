@@ -60,7 +60,8 @@ class RenderSummary:
 
 
 def modelnet_objects(
-    root: str | Path, category: str, n: int | None = None, split: str = "train", seed: int = 0, first_obj_id: int = 1
+    root: str | Path, category: str, n: int | None = None, split: str = "train", seed: int = 0, first_obj_id: int = 1,
+    progress: bool = True,
 ) -> list[ObjectSpec]:
     """ModelNet10 instances as :class:`ObjectSpec`, rescaled to real size (seeded per instance).
 
@@ -69,7 +70,7 @@ def modelnet_objects(
     """
     insts = paper_instances(root, category, n) if split == "train" else list_instances(root, category, split)[: n or None]
     out = []
-    for i, inst in enumerate(tqdm(insts, desc=f"load {category}/{split}", leave=False, disable=len(insts) < 8)):
+    for i, inst in enumerate(tqdm(insts, desc=f"load {category}/{split}", leave=False, disable=not progress or len(insts) < 8)):
         mesh, s = prepare_mesh(inst.path, category, seed=[seed, i])
         out.append(ObjectSpec(first_obj_id + i, category, mesh, str(inst.path), s))
     return out
