@@ -148,6 +148,12 @@ def test_renderer_reuse_many_meshes(kinect):
     da2, _ = kinect.render(a, R, t)
     assert not np.array_equal(da, db)
     np.testing.assert_array_equal(da, da2)
+    a.apply_translation([0, 0, 0.1])  # edited in place: rendered anew, not from the cache
+    da3, m3 = kinect.render(a, R, t)
+    assert not np.array_equal(da3, da)
+    for _ in range(12):  # more meshes than the cache holds, then the first again
+        kinect.render(generate("bed", _).mesh, R, t)
+    np.testing.assert_array_equal(kinect.render(a, R, t)[0], da3)
 
 
 def test_noise_statistics_on_a_plane():

@@ -98,14 +98,14 @@ class DepthRenderer:
         # The camera stays at the GL origin; each frame moves the object instead.
         self._scene.add(cam, pose=np.eye(4))
         self._material = pyrender.MetallicRoughnessMaterial(doubleSided=True)
-        self._cache: dict[int, tuple[trimesh.Trimesh, object]] = {}
+        self._cache: dict[tuple[int, int], tuple[trimesh.Trimesh, object]] = {}
         self._cache_size = cache_size
         self._node = None
-        self._node_key: int | None = None
 
     def _mesh_node(self, mesh: trimesh.Trimesh):
         pyrender = _pyrender
-        key = id(mesh)
+        # hash(mesh) is trimesh's cached content hash: a mesh edited in place is uploaded again.
+        key = (id(mesh), hash(mesh))
         if key not in self._cache:
             if len(self._cache) >= self._cache_size:
                 self._cache.pop(next(iter(self._cache)))
@@ -118,11 +118,11 @@ class DepthRenderer:
             )
             pm = pyrender.Mesh([prim])
             self._cache[key] = (mesh, pm)  # keep the mesh alive so that its id stays unique
-        if self._node_key != key:
+        pm = self._cache[key][1]
+        if self._node is None or self._node.mesh is not pm:
             if self._node is not None:
                 self._scene.remove_node(self._node)
-            self._node = self._scene.add(self._cache[key][1])
-            self._node_key = key
+            self._node = self._scene.add(pm)
         return self._node
 
     def render(self, mesh: trimesh.Trimesh, R, t) -> tuple[np.ndarray, np.ndarray]:
@@ -144,7 +144,7 @@ class DepthRenderer:
         if self._renderer is not None:
             if self._node is not None:
                 self._scene.remove_node(self._node)
-                self._node, self._node_key = None, None
+                self._node = None
             self._renderer = None
             self._cache.clear()
 
