@@ -383,6 +383,8 @@ def _table(rng: np.random.Generator):
         Wd = L = min(L, 1.4)
     Wd = min(Wd, L)  # the long side is along y, as in ModelNet10
     base = str(rng.choice(["legs", "trestle", "pedestal"], p=[0.65, 0.15, 0.2])) if L < 1.4 else str(rng.choice(["legs", "trestle"], p=[0.8, 0.2]))
+    if base == "trestle" and shape == "round":  # a trestle's feet would stick out of a round top
+        base = "pedestal"
     p = {"kind": kind, "height": H, "length": L, "width": Wd, "top_shape": shape, "base": base,
          "top_thickness": _u(rng, 0.02, 0.06)}
     T = p["top_thickness"]
