@@ -17,6 +17,7 @@ pub mod model_io;
 pub mod params;
 pub mod rng;
 pub mod splitter;
+pub mod trainset_io;
 pub mod tree;
 /// Vote aggregation, mode finding and whole-image prediction (inference helper's module).
 pub mod vote;
