@@ -1,7 +1,7 @@
 """Linemod baseline (isa.linemod): pose recovery, refused templates, the paper's protocol, errors.
 
-The truth is the pose each depth image was rendered with. Depth comes from trimesh ray casting
-(embree), independent of the code under test.
+The truth is the pose each depth image was rendered with (isa.render, tested against ray casting
+in test_render.py).
 """
 
 from __future__ import annotations
@@ -14,39 +14,19 @@ pytest.importorskip("cv2")
 
 from isa.camera import KINECT_V1 as K  # noqa: E402
 from isa.linemod import LinemodDetector, LinemodRecall, depth_to_mm, linemod_recall  # noqa: E402
+from isa.views import look_at  # noqa: E402
 
 
 # ---------------------------------------------------------------------------------- helpers
-def look_at(eye, target=(0.0, 0.0, 0.0)):
-    """OpenCV-frame pose (R, t) of a camera at ``eye`` looking at ``target`` with world z up."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
-    return R, -R @ eye
+@pytest.fixture(scope="module")
+def renderer():
+    from isa.render import DepthRenderer
+
+    with DepthRenderer(K) as r:
+        yield r
 
 
-def ray_depth(mesh, R, t):
-    """Float32 depth (m) of ``mesh`` at pose (R, t), ray-cast only over its projected box (fast)."""
-    m = mesh.copy()
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    m.apply_transform(T)
-    uv = K.project(m.vertices)
-    u0, v0 = np.maximum(np.floor(uv.min(0)).astype(int) - 1, 0)
-    u1, v1 = np.minimum(np.ceil(uv.max(0)).astype(int) + 2, (K.width, K.height))
-    u, v = np.meshgrid(np.arange(u0, u1), np.arange(v0, v1))
-    rays = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones(u.shape)], -1).reshape(-1, 3)
-    hits, idx, _ = m.ray.intersects_location(np.zeros_like(rays), rays, multiple_hits=False)
-    crop = np.zeros(len(rays), np.float32)
-    crop[idx] = hits[:, 2]
-    depth = np.zeros((K.height, K.width), np.float32)
-    depth[v0:v1, u0:u1] = crop.reshape(u.shape)
-    return depth
-
-
-def blocky_chair():
+def _blocky_chair():
     """An asymmetric seat + back + pedestal (origin at the seat centre), 0.9 m tall."""
     seat = trimesh.creation.box((0.45, 0.45, 0.08))
     back = trimesh.creation.box((0.45, 0.06, 0.5))
@@ -54,6 +34,12 @@ def blocky_chair():
     base = trimesh.creation.box((0.3, 0.3, 0.4))
     base.apply_translation((0, 0, -0.24))
     return trimesh.util.concatenate([seat, back, base])
+
+
+CHAIR = _blocky_chair()
+TINY = trimesh.creation.box((0.03, 0.03, 0.03))  # ~50 pixels at 2.6 m: too few features
+ROD = trimesh.creation.cylinder(0.01, 0.8)  # 2 px wide
+SPHERE = trimesh.creation.icosphere(3, 0.35)
 
 
 def rotation_deg(Ra, Rb):
@@ -68,9 +54,8 @@ def view_poses(distance=2.5):
 
 
 @pytest.fixture(scope="module")
-def chair_views():
-    mesh = blocky_chair()
-    return [(ray_depth(mesh, R, t), R, t) for R, t in view_poses()]
+def chair_views(renderer):
+    return [(renderer.render(CHAIR, R, t)[0], R, t) for R, t in view_poses()]
 
 
 @pytest.fixture(scope="module")
@@ -93,10 +78,10 @@ def test_every_template_view_recovers_its_own_pose(chair_views, chair_detector):
 
 
 @pytest.mark.parametrize("shift", [(0.15, -0.05, 0.2), (-0.2, 0.1, -0.3)])
-def test_moved_object_gets_template_rotation_and_its_own_translation(chair_views, chair_detector, shift):
+def test_moved_object_gets_template_rotation_and_its_own_translation(renderer, chair_views, chair_detector, shift):
     _, R, t = chair_views[1]
     t_true = t + np.array(shift)
-    m = chair_detector.match(ray_depth(blocky_chair(), R, t_true))
+    m = chair_detector.match(renderer.render(CHAIR, R, t_true)[0])
     assert m.view == 1
     np.testing.assert_allclose(m.R, R)
     # The template's translation would be off by |shift| >= 0.27 m; the estimate follows the object.
@@ -126,23 +111,21 @@ def test_matches_are_sorted_and_thresholded(chair_views, chair_detector):
 
 
 # ---------------------------------------------------------------------------------- refused views
-def test_feature_poor_views_are_refused_and_counted():
+def test_feature_poor_views_are_refused_and_counted(renderer):
     R, t = look_at((2.5, 0.0, 0.8))
     det = LinemodDetector()
-    tiny = trimesh.creation.box((0.03, 0.03, 0.03))  # ~50 pixels: too few features
-    rod = trimesh.creation.cylinder(0.01, 0.8)  # 2 px wide
-    assert det.add_view(ray_depth(tiny, R, t), None, R, t) is False
-    assert det.add_view(ray_depth(blocky_chair(), R, t), None, R, t) is True
-    assert det.add_view(ray_depth(rod, R, t), None, R, t) is False
+    assert det.add_view(*renderer.render(TINY, R, t), R, t) is False
+    assert det.add_view(*renderer.render(CHAIR, R, t), R, t) is True
+    assert det.add_view(*renderer.render(ROD, R, t), R, t) is False
     assert det.refused == (0, 2) and det.accepted == (1,)
     assert det.n_views == 3 and det.n_templates == 1
     # The accepted view keeps its own index even though a refused one came first.
-    assert det.match(ray_depth(blocky_chair(), R, t)).view == 1
+    assert det.match(renderer.render(CHAIR, R, t)[0]).view == 1
 
 
-def test_detector_with_only_refused_views_matches_nothing():
+def test_detector_with_only_refused_views_matches_nothing(renderer):
     R, t = look_at((2.5, 0.0, 0.8))
-    d = ray_depth(trimesh.creation.box((0.03, 0.03, 0.03)), R, t)
+    d = renderer.render(TINY, R, t)[0]
     det = LinemodDetector.from_views([d], [d > 0], [R], [t])
     assert det.n_templates == 0 and det.refused == (0,)
     assert det.match(d) is None and det.matches(d) == []
@@ -156,20 +139,19 @@ def test_distance_threshold_below_the_scene_refuses_everything(chair_views):
 
 
 # ---------------------------------------------------------------------------------- protocol
-def test_protocol_recall_per_instance_and_min_max_mean(chair_views, chair_detector):
+def test_protocol_recall_per_instance_and_min_max_mean(renderer, chair_views, chair_detector):
     frames = [{"depth": d, "R": R, "t": t} for d, R, t in chair_views]
 
     def is_correct(R_est, t_est, frame):
         return rotation_deg(R_est, frame["R"]) < 5 and np.linalg.norm(t_est - frame["t"]) < 0.05
 
     # A detector of another object: a sphere matches (rotation is then arbitrary) but rarely right.
-    sphere = trimesh.creation.icosphere(3, 0.35)
     built = []
 
     def build_sphere():
         built.append(True)
         poses = view_poses()[:2]
-        return LinemodDetector.from_views([ray_depth(sphere, R, t) for R, t in poses], None, *zip(*poses))
+        return LinemodDetector.from_views([renderer.render(SPHERE, R, t)[0] for R, t in poses], None, *zip(*poses))
 
     res = linemod_recall([("chair", chair_detector), ("sphere", build_sphere)], frames, is_correct)
     assert built == [True]
