@@ -9,7 +9,7 @@ from PIL import Image
 
 from isa import bop
 from isa.camera import KINECT_V1
-from isa.dataset import ObjectSpec, default_views, hull_points, procedural_objects, render_dataset
+from isa.dataset import ObjectSpec, default_test_views, default_views, hull_points, main, procedural_objects, render_dataset
 from isa.exceptions import DataError
 from isa.figures.renders import bop_contact_sheet
 from isa.noise import KinectNoise
@@ -182,3 +182,19 @@ def test_modelnet_chair_dataset(tmp_path, shared_data):
     assert s.rendered == 4
     f = bop.read_frame(tmp_path, "train", 2, 1)
     assert 1.4 < np.median(f.depth[f.mask]) < 4.6
+
+
+def test_default_test_views_avoid_the_training_views(objects):
+    o = objects[0]
+    test, train = default_test_views(o, 40, seed=2), default_views(o, 89, seed=2)
+    ang = np.degrees(np.arccos(np.clip(_dirs(test) @ _dirs(train).T, -1, 1)))
+    assert ang.min() >= 3.0
+
+
+def test_command_line(tmp_path, capsys):
+    main(["--procedural", "1", "--category", "toilet", "--views", "2", "--split", "test", "--out", str(tmp_path)])
+    assert "2 frames rendered" in capsys.readouterr().out
+    assert bop.list_frames(tmp_path, "test", 1) == [0, 1]
+    with pytest.raises(SystemExit):
+        main(["--procedural", "1", "--category", "sofa", "--out", str(tmp_path)])
+    assert "unknown category 'sofa'" in capsys.readouterr().err

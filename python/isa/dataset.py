@@ -8,6 +8,7 @@ Command line (e.g. the paper's chair training set)::
 
     python -m isa.dataset --modelnet ../shared/data/modelnet10 --category chair --out data/chair
     python -m isa.dataset --procedural 10 --category table --out data/table
+    python -m isa.dataset --modelnet ../shared/data/modelnet10 --category chair --split test --views 10 --out data/chair
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from isa.modelnet import list_instances, paper_instances
 from isa.noise import KinectNoise, apply_kinect_noise
 from isa.procedural import generate
 from isa.skeleton_graph import SkeletonGraph
-from isa.views import Views, training_views
+from isa.views import Views, sample_test_views, training_views
 
 
 @dataclass
@@ -97,6 +98,14 @@ def default_views(obj: ObjectSpec, n_views: int = PAPER_VIEWS, seed: int = 0, in
     """The training views of one object: ``training_views(n_views)`` seeded by (seed, obj_id),
     1.5-4 m away but moved back where needed so that the whole object is in the image."""
     return training_views(n_views, seed=[seed, obj.obj_id], fit_points=hull_points(obj.mesh), intrinsics=intrinsics)
+
+
+def default_test_views(obj: ObjectSpec, n_views: int, seed: int = 0, intrinsics: Intrinsics = KINECT_V1) -> Views:
+    """``n_views`` random test views of one object, each >= 3 deg away from every one of its
+    :func:`default_views` (same ``seed``), fitted to keep the object in the image."""
+    train = default_views(obj, PAPER_VIEWS, seed, intrinsics)
+    return sample_test_views(n_views, seed=[seed, obj.obj_id, 1], exclude=train,
+                             fit_points=hull_points(obj.mesh), intrinsics=intrinsics)
 
 
 def _settings(intrinsics: Intrinsics, depth_scale: float, noise: KinectNoise | None, views_id: str) -> dict:
@@ -220,14 +229,23 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--category", required=True)
     ap.add_argument("--out", type=Path, required=True, help="BOP dataset root to write")
     ap.add_argument("--instances", type=int, default=None, help="ModelNet: first N train instances (default: paper)")
-    ap.add_argument("--views", type=int, default=PAPER_VIEWS)
+    ap.add_argument("--split", choices=["train", "test"], default="train",
+                    help="train: ModelNet train instances, protocol views; test: test instances, random views")
+    ap.add_argument("--views", type=int, default=PAPER_VIEWS, help="views per instance")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise", action="store_true", help="add Kinect-like noise")
     a = ap.parse_args(argv)
-    check_category(a.category)
-    objs = (modelnet_objects(a.modelnet, a.category, a.instances, seed=a.seed) if a.modelnet is not None
-            else procedural_objects(a.category, a.procedural, a.seed))
-    s = render_dataset(a.out, objs, n_views=a.views, view_seed=a.seed, noise=KinectNoise() if a.noise else None)
+    try:
+        check_category(a.category)
+        if a.modelnet is not None:
+            objs = modelnet_objects(a.modelnet, a.category, a.instances, split=a.split, seed=a.seed)
+        else:  # test instances are other seeds than the training ones
+            objs = procedural_objects(a.category, a.procedural, a.seed + (1000 if a.split == "test" else 0))
+        views = (lambda o: default_test_views(o, a.views, a.seed)) if a.split == "test" else None
+        s = render_dataset(a.out, objs, split=a.split, views=views, n_views=a.views, view_seed=a.seed,
+                           noise=KinectNoise() if a.noise else None)
+    except DataError as exc:
+        ap.exit(2, f"error: {exc}\n")
     print(f"{s.rendered} frames rendered, {s.skipped} already there, {s.seconds:.1f} s -> {a.out}")
 
 
