@@ -66,7 +66,7 @@ pub struct ForestParams {
     pub min_samples_split: usize,
     /// Each child of a split must receive at least this many parts (of the scored subset).
     pub min_samples_leaf: usize,
-    /// A split whose best total gain is below this becomes a leaf.
+    /// A node whose best total gain is not above this becomes a leaf.
     pub min_gain: f64,
     /// Random feature candidates ψ = (u, v) per node.
     pub n_candidates: usize,

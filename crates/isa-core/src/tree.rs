@@ -2,7 +2,7 @@
 //!
 //! Stopping: a node becomes a leaf at `max_depth`, with fewer than `min_samples_split` parts,
 //! when no candidate threshold leaves `min_samples_leaf` scored parts on each side, or when the
-//! best total gain is below `min_gain`.
+//! best total gain is not above `min_gain`.
 //!
 //! Node ids are assigned breadth-first (root 0, children of a split at `child` and `child + 1`),
 //! so a node's random stream `mix(seed, tree, node id)` does not depend on scheduling.
@@ -153,7 +153,7 @@ fn process_node(ctx: &TrainContext<'_>, tree: usize, node_id: usize, depth: usiz
     let best = best_split(ctx.crit, ctx.targets, &subset, cands.len(), &feat, &cfg, node_seed);
     drop(subset);
     match best {
-        Some(b) if b.gain.is_finite() && b.gain >= p.min_gain => {
+        Some(b) if b.gain.is_finite() && b.gain > p.min_gain => {
             let f = cands[b.candidate];
             let (left, right): (Vec<u32>, Vec<u32>) =
                 idx.iter().partition(|&&i| f.eval(store, &parts[i as usize]) < b.threshold);

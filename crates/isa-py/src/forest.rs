@@ -1,0 +1,307 @@
+//! `isa._core.Forest`: fit / save / load / pickle / leaves and votes of parts.
+
+use std::path::PathBuf;
+
+use numpy::ndarray::Array2;
+use numpy::prelude::*;
+use numpy::{PyArray1, PyArray2, PyReadonlyArrayDyn};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+use isa_core::criterion::RawTargets;
+use isa_core::{Forest, ForestParams, TrainingSet};
+
+use crate::arrays::{array, check_finite, depth_store, parts as parts_arg};
+use crate::errors::{input_err, param_err, to_py};
+
+/// Builds parameters from the defaults overridden by `kwargs` (unknown names are errors).
+pub fn params_from_kwargs(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<ForestParams> {
+    let mut v = serde_json::to_value(ForestParams::default()).expect("params serialise");
+    if let Some(kw) = kwargs {
+        let obj = v.as_object_mut().expect("object");
+        for (k, val) in kw.iter() {
+            let key: String = k.extract()?;
+            if !obj.contains_key(&key) {
+                let mut names: Vec<&String> = obj.keys().collect();
+                names.sort();
+                return Err(param_err(format!("unknown forest parameter {key:?}; known: {names:?}")));
+            }
+            let j = if val.is_instance_of::<pyo3::types::PyBool>() {
+                serde_json::Value::Bool(val.extract()?)
+            } else if let Ok(i) = val.extract::<i64>() {
+                serde_json::Value::from(i)
+            } else if let Ok(f) = val.extract::<f64>() {
+                serde_json::Number::from_f64(f)
+                    .map(serde_json::Value::Number)
+                    .ok_or_else(|| param_err(format!("{key} must be finite, got {f}")))?
+            } else if let Ok(s) = val.extract::<String>() {
+                if key == "quality" {
+                    serde_json::Value::String(isa_core::Quality::parse(&s).map_err(to_py)?.as_str().to_string())
+                } else {
+                    serde_json::Value::String(s)
+                }
+            } else {
+                return Err(param_err(format!("{key}: unsupported value {}", crate::arrays::describe(&val))));
+            };
+            obj.insert(key, j);
+        }
+    }
+    let p: ForestParams =
+        serde_json::from_value(v).map_err(|e| param_err(format!("forest parameters: {e}")))?;
+    p.validate().map_err(to_py)?;
+    Ok(p)
+}
+
+fn f32_arr<'py>(obj: &Bound<'py, PyAny>, name: &str, shape: &[Option<usize>]) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+    let a = array::<f32>(obj, name, "float32", shape)?;
+    let cols = a.shape().get(1).copied().unwrap_or(1);
+    check_finite(a.as_slice().map_err(|e| input_err(format!("{name}: {e}")))?, name, cols)?;
+    Ok(a)
+}
+
+fn slice<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> &'a [f32] {
+    a.as_slice().expect("checked contiguous")
+}
+
+/// A forest of randomised trees voting for the SSC offset and rotation of depth-image parts
+/// (the ISA forest, paper Section 3.3).
+#[pyclass(name = "Forest", module = "isa._core")]
+pub struct PyForest {
+    params: ForestParams,
+    forest: Option<Forest>,
+    n_threads: Option<usize>,
+}
+
+impl PyForest {
+    fn fitted(&self) -> PyResult<&Forest> {
+        self.forest.as_ref().ok_or_else(|| input_err("this Forest is not fitted: call fit() or Forest.load()"))
+    }
+    pub fn from_core(f: Forest) -> Self {
+        PyForest { params: f.params.clone(), forest: Some(f), n_threads: None }
+    }
+    /// The trained core forest (for other bindings, e.g. prediction).
+    pub fn core(&self) -> PyResult<&Forest> {
+        self.fitted()
+    }
+}
+
+const STATE_UNFITTED: &[u8] = b"ISA-UNFITTED\0";
+
+#[pymethods]
+impl PyForest {
+    #[new]
+    #[pyo3(signature = (*, n_threads=None, **params))]
+    fn new(n_threads: Option<usize>, params: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        if n_threads == Some(0) {
+            return Err(param_err("n_threads must be at least 1 (or None for all cores)"));
+        }
+        Ok(PyForest { params: params_from_kwargs(params)?, forest: None, n_threads })
+    }
+
+    /// Trains the forest (the GIL is released while training).
+    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}"))]
+    #[allow(clippy::too_many_arguments)]
+    fn fit(
+        &mut self,
+        py: Python<'_>,
+        images: &Bound<'_, PyAny>,
+        parts: &Bound<'_, PyAny>,
+        offsets: &Bound<'_, PyAny>,
+        rotations: &Bound<'_, PyAny>,
+        link_angles: Option<&Bound<'_, PyAny>>,
+        node_offsets: Option<&Bound<'_, PyAny>>,
+        metadata: &str,
+    ) -> PyResult<()> {
+        let store = depth_store(images)?;
+        let parts = parts_arg(parts)?;
+        let n = parts.len();
+        let off = f32_arr(offsets, "offsets", &[Some(n), Some(3)])?;
+        let rot = f32_arr(rotations, "rotations", &[Some(n), Some(4)])?;
+        let la = link_angles.filter(|o| !o.is_none()).map(|o| f32_arr(o, "link_angles", &[Some(n), None])).transpose()?;
+        let no = node_offsets.filter(|o| !o.is_none()).map(|o| f32_arr(o, "node_offsets", &[Some(n), None])).transpose()?;
+        let raw = RawTargets {
+            offsets: slice(&off),
+            rotations: slice(&rot),
+            link_angles: la.as_ref().map(|a| (slice(a), a.shape()[1])),
+            node_offsets: no.as_ref().map(|a| (slice(a), a.shape()[1])),
+        };
+        let params = self.params.clone();
+        let threads = self.n_threads;
+        let forest = py.detach(|| {
+            let data = TrainingSet { store: &store, parts: &parts, targets: raw };
+            Forest::fit(&params, &data, metadata, threads)
+        });
+        self.forest = Some(forest.map_err(to_py)?);
+        Ok(())
+    }
+
+    /// Saves the model atomically (temporary file + rename).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let f = self.fitted()?;
+        py.detach(|| f.save(&path)).map_err(to_py)
+    }
+
+    /// Loads a model file; raises ModelFormatError for a bad file, IsaIOError if unreadable.
+    #[staticmethod]
+    #[pyo3(signature = (path, *, n_threads=None))]
+    fn load(py: Python<'_>, path: PathBuf, n_threads: Option<usize>) -> PyResult<Self> {
+        let f = py.detach(|| Forest::load(&path)).map_err(to_py)?;
+        Ok(PyForest { n_threads, ..PyForest::from_core(f) })
+    }
+
+    /// The model-file bytes.
+    fn to_bytes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        Ok(PyBytes::new(py, &self.fitted()?.to_bytes()))
+    }
+
+    #[staticmethod]
+    fn from_bytes(data: &[u8]) -> PyResult<Self> {
+        Ok(PyForest::from_core(Forest::from_bytes(data).map_err(to_py)?))
+    }
+
+    fn __getstate__<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        match &self.forest {
+            Some(f) => PyBytes::new(py, &f.to_bytes()),
+            None => {
+                let mut b = STATE_UNFITTED.to_vec();
+                b.extend_from_slice(self.params.to_json().as_bytes());
+                PyBytes::new(py, &b)
+            }
+        }
+    }
+
+    fn __setstate__(&mut self, state: &[u8]) -> PyResult<()> {
+        if let Some(rest) = state.strip_prefix(STATE_UNFITTED) {
+            let s = std::str::from_utf8(rest).map_err(|_| input_err("pickled Forest state is not UTF-8"))?;
+            self.params = ForestParams::from_json(s).map_err(to_py)?;
+            self.forest = None;
+        } else {
+            let f = Forest::from_bytes(state).map_err(to_py)?;
+            self.params = f.params.clone();
+            self.forest = Some(f);
+        }
+        Ok(())
+    }
+
+    /// Leaf index of every part in every tree: (P, n_trees) int32.
+    fn apply<'py>(&self, py: Python<'py>, images: &Bound<'py, PyAny>, parts: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray2<i32>>> {
+        let f = self.fitted()?;
+        let store = depth_store(images)?;
+        let parts = parts_arg(parts)?;
+        let threads = self.n_threads;
+        let leaves = py
+            .detach(|| isa_core::forest::with_threads(threads, || f.apply(&store, &parts)))
+            .map_err(to_py)?
+            .map_err(to_py)?;
+        let t = f.n_trees();
+        let v: Vec<i32> = leaves.into_iter().map(|x| x as i32).collect();
+        Ok(Array2::from_shape_vec((parts.len(), t), v).expect("shape").into_pyarray(py))
+    }
+
+    /// Every vote of every part through every tree, as a dict of flat arrays (V = number of
+    /// votes): part (V,) int32, tree (V,) int32, weight (V,) float32, offset (V, 3) float32,
+    /// rotation (V, 4) float32 (w, x, y, z). Ordered by part, tree, decreasing weight.
+    fn votes<'py>(&self, py: Python<'py>, images: &Bound<'py, PyAny>, parts: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+        let f = self.fitted()?;
+        let store = depth_store(images)?;
+        let parts = parts_arg(parts)?;
+        let threads = self.n_threads;
+        let votes = py
+            .detach(|| isa_core::forest::with_threads(threads, || f.part_votes(&store, &parts)))
+            .map_err(to_py)?
+            .map_err(to_py)?;
+        let n = votes.len();
+        let d = PyDict::new(py);
+        d.set_item("part", PyArray1::from_vec(py, votes.iter().map(|v| v.part as i32).collect()))?;
+        d.set_item("tree", PyArray1::from_vec(py, votes.iter().map(|v| v.tree as i32).collect()))?;
+        d.set_item("weight", PyArray1::from_vec(py, votes.iter().map(|v| v.vote.weight).collect()))?;
+        let off: Vec<f32> = votes.iter().flat_map(|v| v.vote.offset).collect();
+        let rot: Vec<f32> = votes.iter().flat_map(|v| v.vote.rotation).collect();
+        d.set_item("offset", Array2::from_shape_vec((n, 3), off).expect("shape").into_pyarray(py))?;
+        d.set_item("rotation", Array2::from_shape_vec((n, 4), rot).expect("shape").into_pyarray(py))?;
+        Ok(d)
+    }
+
+    /// Vote modes of one leaf: (weights (k,), offsets (k, 3), rotations (k, 4)).
+    #[allow(clippy::type_complexity)]
+    fn leaf_votes<'py>(
+        &self,
+        py: Python<'py>,
+        tree: usize,
+        leaf: usize,
+    ) -> PyResult<(Bound<'py, PyArray1<f32>>, Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>)> {
+        let f = self.fitted()?;
+        if tree >= f.n_trees() || leaf >= f.trees[tree].n_leaves() {
+            return Err(input_err(format!("no leaf {leaf} in tree {tree}")));
+        }
+        let v = f.leaf_votes(tree, leaf);
+        let w: Vec<f32> = v.iter().map(|x| x.weight).collect();
+        let o: Vec<f32> = v.iter().flat_map(|x| x.offset).collect();
+        let r: Vec<f32> = v.iter().flat_map(|x| x.rotation).collect();
+        Ok((
+            PyArray1::from_vec(py, w),
+            Array2::from_shape_vec((v.len(), 3), o).expect("shape").into_pyarray(py),
+            Array2::from_shape_vec((v.len(), 4), r).expect("shape").into_pyarray(py),
+        ))
+    }
+
+    /// Training configuration as JSON.
+    #[getter]
+    fn params_json(&self) -> String {
+        self.params.to_json()
+    }
+    #[getter]
+    fn metadata(&self) -> PyResult<String> {
+        Ok(self.fitted()?.metadata.clone())
+    }
+    #[getter]
+    fn is_fitted(&self) -> bool {
+        self.forest.is_some()
+    }
+    #[getter]
+    fn n_trees(&self) -> usize {
+        self.forest.as_ref().map_or(self.params.n_trees, |f| f.n_trees())
+    }
+    #[getter]
+    fn n_threads(&self) -> Option<usize> {
+        self.n_threads
+    }
+    #[setter]
+    fn set_n_threads(&mut self, n: Option<usize>) -> PyResult<()> {
+        if n == Some(0) {
+            return Err(param_err("n_threads must be at least 1 (or None for all cores)"));
+        }
+        self.n_threads = n;
+        Ok(())
+    }
+    /// Version of isa that trained the model.
+    #[getter]
+    fn crate_version(&self) -> PyResult<String> {
+        Ok(self.fitted()?.crate_version.clone())
+    }
+    /// Number of nodes of each tree.
+    #[getter]
+    fn n_nodes(&self) -> PyResult<Vec<usize>> {
+        Ok(self.fitted()?.trees.iter().map(|t| t.nodes.len()).collect())
+    }
+    /// Number of leaves of each tree.
+    #[getter]
+    fn n_leaves(&self) -> PyResult<Vec<usize>> {
+        Ok(self.fitted()?.trees.iter().map(|t| t.n_leaves()).collect())
+    }
+    /// Depth of each tree.
+    #[getter]
+    fn depths(&self) -> PyResult<Vec<usize>> {
+        Ok(self.fitted()?.trees.iter().map(|t| t.depth()).collect())
+    }
+
+    fn __repr__(&self) -> String {
+        match &self.forest {
+            Some(f) => {
+                let (n, l) = f.size();
+                format!("Forest(n_trees={}, quality={:?}, nodes={n}, leaves={l})", f.n_trees(), f.params.quality.as_str())
+            }
+            None => format!("Forest(unfitted, n_trees={}, quality={:?})", self.params.n_trees, self.params.quality.as_str()),
+        }
+    }
+}

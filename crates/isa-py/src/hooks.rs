@@ -1,0 +1,210 @@
+//! Module-level functions: part sampling, features, and the criterion / split-search hooks the
+//! NumPy reference tests and benchmarks call.
+
+use numpy::ndarray::Array2;
+use numpy::prelude::*;
+use numpy::PyArray2;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use isa_core::criterion::{build_targets, term_gains, Criterion, RawTargets};
+use isa_core::splitter::{best_split, SplitConfig};
+use isa_core::{Feature, Quality};
+
+use crate::arrays::{array, check_finite, depth_store, parts as parts_arg};
+use crate::errors::{input_err, param_err, to_py};
+
+fn f32_2d<'py>(obj: &Bound<'py, PyAny>, name: &str, rows: Option<usize>, cols: Option<usize>) -> PyResult<numpy::PyReadonlyArrayDyn<'py, f32>> {
+    let a = array::<f32>(obj, name, "float32", &[rows, cols])?;
+    let c = a.shape()[1];
+    check_finite(a.as_slice().map_err(|e| input_err(format!("{name}: {e}")))?, name, c)?;
+    Ok(a)
+}
+
+fn opt<'a, 'py>(o: Option<&'a Bound<'py, PyAny>>) -> Option<&'a Bound<'py, PyAny>> {
+    o.filter(|x| !x.is_none())
+}
+
+/// Parts on a `stride` grid of every image: (P, 3) int32 `[image, u, v]` with depth > 0.
+/// `max_per_image` (training) keeps at most that many per image, drawn from `seed`.
+#[pyfunction]
+#[pyo3(signature = (images, stride=4, max_per_image=None, seed=0))]
+pub fn sample_parts<'py>(
+    py: Python<'py>,
+    images: &Bound<'py, PyAny>,
+    stride: usize,
+    max_per_image: Option<usize>,
+    seed: u64,
+) -> PyResult<Bound<'py, PyArray2<i32>>> {
+    let store = depth_store(images)?;
+    let parts = py.detach(|| isa_core::sample_parts(&store, stride, max_per_image, seed)).map_err(to_py)?;
+    let n = parts.len();
+    let flat: Vec<i32> = parts.into_iter().flatten().collect();
+    Ok(Array2::from_shape_vec((n, 3), flat).expect("shape").into_pyarray(py))
+}
+
+/// Eq. 5 features of every part for every candidate `(u[c], v[c])` (pixel·metres): (P, C) float32 mm.
+#[pyfunction]
+pub fn depth_features<'py>(
+    py: Python<'py>,
+    images: &Bound<'py, PyAny>,
+    parts: &Bound<'py, PyAny>,
+    u: &Bound<'py, PyAny>,
+    v: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let store = depth_store(images)?;
+    let parts = parts_arg(parts)?;
+    store.validate_parts(&parts).map_err(to_py)?;
+    let ua = f32_2d(u, "u", None, Some(2))?;
+    let c = ua.shape()[0];
+    let va = f32_2d(v, "v", Some(c), Some(2))?;
+    let (us, vs) = (ua.as_slice()?, va.as_slice()?);
+    let feats: Vec<Feature> = (0..c).map(|k| Feature { u: [us[2 * k], us[2 * k + 1]], v: [vs[2 * k], vs[2 * k + 1]] }).collect();
+    let out = py.detach(|| isa_core::features::eval_matrix(&store, &parts, &feats));
+    Ok(Array2::from_shape_vec((parts.len(), c), out).expect("shape").into_pyarray(py))
+}
+
+struct Raw<'py> {
+    off: numpy::PyReadonlyArrayDyn<'py, f32>,
+    rot: numpy::PyReadonlyArrayDyn<'py, f32>,
+    la: Option<numpy::PyReadonlyArrayDyn<'py, f32>>,
+    no: Option<numpy::PyReadonlyArrayDyn<'py, f32>>,
+}
+
+impl<'py> Raw<'py> {
+    fn new(
+        offsets: &Bound<'py, PyAny>,
+        rotations: &Bound<'py, PyAny>,
+        link_angles: Option<&Bound<'py, PyAny>>,
+        node_offsets: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Self> {
+        let off = f32_2d(offsets, "offsets", None, Some(3))?;
+        let n = off.shape()[0];
+        Ok(Raw {
+            rot: f32_2d(rotations, "rotations", Some(n), Some(4))?,
+            la: opt(link_angles).map(|o| f32_2d(o, "link_angles", Some(n), None)).transpose()?,
+            no: opt(node_offsets).map(|o| f32_2d(o, "node_offsets", Some(n), None)).transpose()?,
+            off,
+        })
+    }
+    fn raw(&self) -> RawTargets<'_> {
+        RawTargets {
+            offsets: self.off.as_slice().expect("contiguous"),
+            rotations: self.rot.as_slice().expect("contiguous"),
+            link_angles: self.la.as_ref().map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
+            node_offsets: self.no.as_ref().map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
+        }
+    }
+}
+
+/// Test hook: gains of the criterion terms for splitting these parts by `left_mask`, computed
+/// by the forest's own code (embedding, standardisation over these parts, optional reduction,
+/// ridge `reg`). Returns {"Q1": g1} plus "Q2" / "Q3" when link angles / node offsets are given.
+#[pyfunction]
+#[pyo3(signature = (offsets, rotations, link_angles, node_offsets, left_mask, reg=1e-4, reduce_dims=0))]
+#[allow(clippy::too_many_arguments)]
+pub fn criterion_gains<'py>(
+    py: Python<'py>,
+    offsets: &Bound<'py, PyAny>,
+    rotations: &Bound<'py, PyAny>,
+    link_angles: Option<&Bound<'py, PyAny>>,
+    node_offsets: Option<&Bound<'py, PyAny>>,
+    left_mask: &Bound<'py, PyAny>,
+    reg: f64,
+    reduce_dims: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let r = Raw::new(offsets, rotations, link_angles, node_offsets)?;
+    let n = r.off.shape()[0];
+    let mask = array::<bool>(left_mask, "left_mask", "bool_", &[Some(n)])?;
+    let g = term_gains(&r.raw(), mask.as_slice()?, reg, reduce_dims).map_err(to_py)?;
+    let d = PyDict::new(py);
+    d.set_item("Q1", g[0])?;
+    if r.la.is_some() {
+        d.set_item("Q2", g[1])?;
+    }
+    if r.no.is_some() {
+        d.set_item("Q3", g[2])?;
+    }
+    Ok(d)
+}
+
+/// The criterion's target vectors (embedded, standardised, optionally reduced): (P, D) float32
+/// and the block sizes [offset 3, rotation 6, links, nodes].
+#[pyfunction]
+#[pyo3(signature = (offsets, rotations, link_angles=None, node_offsets=None, reduce_dims=0))]
+pub fn criterion_targets<'py>(
+    py: Python<'py>,
+    offsets: &Bound<'py, PyAny>,
+    rotations: &Bound<'py, PyAny>,
+    link_angles: Option<&Bound<'py, PyAny>>,
+    node_offsets: Option<&Bound<'py, PyAny>>,
+    reduce_dims: usize,
+) -> PyResult<(Bound<'py, PyArray2<f32>>, Vec<usize>)> {
+    let r = Raw::new(offsets, rotations, link_angles, node_offsets)?;
+    let q = match (r.la.is_some(), r.no.is_some()) {
+        (false, false) => Quality::Q1,
+        (true, false) => Quality::Q1Q2,
+        (false, true) => Quality::Q1Q3,
+        (true, true) => Quality::Q1Q2Q3,
+    };
+    let t = build_targets(&r.raw(), q, reduce_dims).map_err(to_py)?;
+    let dims = t.layout.blocks.iter().map(|b| b.dim).collect();
+    Ok((Array2::from_shape_vec((t.n, t.layout.dim), t.data).expect("shape").into_pyarray(py), dims))
+}
+
+/// Benchmark hook: the forest's split search on precomputed features (P, C) float32 (candidate
+/// c = column c) and the given targets, scoring all P parts. Returns a dict with the best
+/// candidate, threshold, total gain, term gains and the search time in seconds (excluding the
+/// target preprocessing).
+#[pyfunction]
+#[pyo3(signature = (features, offsets, rotations, link_angles=None, node_offsets=None, *, quality="Q1+Q2+Q3", n_thresholds=16, min_samples_leaf=1, reg=1e-4, reduce_dims=8, seed=0, n_threads=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn split_search<'py>(
+    py: Python<'py>,
+    features: &Bound<'py, PyAny>,
+    offsets: &Bound<'py, PyAny>,
+    rotations: &Bound<'py, PyAny>,
+    link_angles: Option<&Bound<'py, PyAny>>,
+    node_offsets: Option<&Bound<'py, PyAny>>,
+    quality: &str,
+    n_thresholds: usize,
+    min_samples_leaf: usize,
+    reg: f64,
+    reduce_dims: usize,
+    seed: u64,
+    n_threads: Option<usize>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let q = Quality::parse(quality).map_err(to_py)?;
+    let r = Raw::new(offsets, rotations, link_angles, node_offsets)?;
+    let n = r.off.shape()[0];
+    let fa = f32_2d(features, "features", Some(n), None)?;
+    let c = fa.shape()[1];
+    if n_thresholds == 0 || !(reg > 0.0) {
+        return Err(param_err("n_thresholds must be >= 1 and reg > 0"));
+    }
+    let fs = fa.as_slice()?;
+    let raw = r.raw();
+    let res = py.detach(|| {
+        isa_core::forest::with_threads(n_threads, || -> isa_core::Result<_> {
+            let t = build_targets(&raw, q, reduce_dims)?;
+            let crit = Criterion::new(t.layout.clone(), reg);
+            let subset: Vec<u32> = (0..n as u32).collect();
+            let cfg = SplitConfig { n_thresholds, min_samples_leaf, parallel: true };
+            let feat = |k: usize, p: u32| fs[p as usize * c + k];
+            let t0 = std::time::Instant::now();
+            let b = best_split(&crit, &t, &subset, c, &feat, &cfg, seed);
+            Ok((b, t0.elapsed().as_secs_f64()))
+        })
+    });
+    let (best, secs) = res.map_err(to_py)?.map_err(to_py)?;
+    let d = PyDict::new(py);
+    d.set_item("seconds", secs)?;
+    if let Some(b) = best {
+        d.set_item("candidate", b.candidate)?;
+        d.set_item("threshold", b.threshold)?;
+        d.set_item("gain", b.gain)?;
+        d.set_item("gains", b.term_gains.to_vec())?;
+        d.set_item("n_left", b.n_left)?;
+    }
+    Ok(d)
+}

@@ -1,0 +1,270 @@
+"""Python face of the Rust ISA forest (paper Section 3.3).
+
+``Forest`` trains the part-based random forest on depth-image parts, saves / loads versioned
+model files, pickles, and returns the leaf votes of parts. All numerics run in Rust
+(``isa._core``) with the GIL released; this module only validates hyper-parameters and names
+them.
+
+Data contract (see ``docs/DESIGN.md``): ``images`` is a list of uint16 2D depth crops (mm,
+0 = missing, C-contiguous); ``parts`` is (P, 3) int32 ``[image, u, v]`` on pixels with depth;
+``offsets`` (P, 3) float32 metres (SSC minus the part's 3D point, camera frame);
+``rotations`` (P, 4) float32 unit quaternions (w, x, y, z); ``link_angles`` (P, L) float32
+radians and ``node_offsets`` (P, 3N) float32 are privileged: used by the split criterion only,
+never stored. Arrays must already have the right dtype and be C-contiguous
+(``np.ascontiguousarray(x, dtype=np.float32)``); anything else raises ``InvalidInputError``.
+
+Votes: each leaf stores at most ``leaf_modes`` weighted modes ``(weight, offset (3,),
+rotation (4,))``; ``votes(images, parts)`` returns every mode of every (part, tree) as flat
+arrays. The SSC hypothesis of a vote is the part's back-projected 3D point plus ``offset``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from isa import _core
+from isa.exceptions import InvalidParameterError
+
+QUALITIES = ("Q1", "Q1+Q2", "Q1+Q3", "Q1+Q2+Q3")
+
+
+@dataclass(frozen=True)
+class ForestParams:
+    """Hyper-parameters of a forest (all stored in the model file).
+
+    Attributes:
+        n_trees: number of trees.
+        max_depth: maximum depth (root = 0). The paper's forests use 20.
+        min_samples_split: nodes with fewer parts become leaves.
+        min_samples_leaf: each child of a split needs at least this many (scored) parts.
+        min_gain: a node whose best total gain is below this becomes a leaf.
+        n_candidates: random features ψ = (u, v) tried per node.
+        n_thresholds: random thresholds τ per feature, drawn from the node's feature values.
+        max_offset: largest feature-offset component, pixel·metres (divided by the part depth in
+            metres: 150 reaches 150 px at 1 m, 75 px at 2 m).
+        max_score_samples: nodes with more parts score candidates on a random subsample of this
+            many (the chosen split is applied to all parts).
+        quality: criterion terms summed, one of "Q1", "Q1+Q2", "Q1+Q3", "Q1+Q2+Q3".
+        reg: ridge added to each standardised covariance before its log-determinant.
+        reduce_dims: principal components kept of the link-angle and node-offset targets in the
+            criterion (0 = full dimension).
+        bag_fraction: fraction of parts each tree trains on (without replacement).
+        leaf_modes: maximum weighted vote modes per leaf.
+        leaf_max_points: at most this many of a leaf's parts are clustered into modes.
+        vote_bandwidth_offset: mode clustering bandwidth of the SSC offset, metres.
+        vote_bandwidth_rotation: mode clustering bandwidth of the rotation, radians.
+        seed: seed of every random choice (same seed + data = byte-identical model).
+    """
+
+    n_trees: int = 10
+    max_depth: int = 20
+    min_samples_split: int = 20
+    min_samples_leaf: int = 5
+    min_gain: float = 0.0
+    n_candidates: int = 100
+    n_thresholds: int = 16
+    max_offset: float = 150.0
+    max_score_samples: int = 16384
+    quality: str = "Q1+Q2+Q3"
+    reg: float = 1e-4
+    reduce_dims: int = 8
+    bag_fraction: float = 1.0
+    leaf_modes: int = 4
+    leaf_max_points: int = 128
+    vote_bandwidth_offset: float = 0.05
+    vote_bandwidth_rotation: float = 0.35
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("n_trees", "max_depth", "min_samples_split", "min_samples_leaf", "n_candidates",
+                     "n_thresholds", "max_score_samples", "reduce_dims", "leaf_modes", "leaf_max_points", "seed"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise InvalidParameterError(f"{name} must be a non-negative integer, got {v!r}")
+        for name in ("min_gain", "max_offset", "reg", "bag_fraction", "vote_bandwidth_offset",
+                     "vote_bandwidth_rotation"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v):
+                raise InvalidParameterError(f"{name} must be a finite number, got {v!r}")
+        q = str(self.quality).replace(" ", "").upper()
+        if q not in QUALITIES:
+            raise InvalidParameterError(f"quality must be one of {QUALITIES}, got {self.quality!r}")
+        object.__setattr__(self, "quality", q)
+        # Range checks (shared with the core, whose messages name the parameter).
+        _core.Forest(**self._core_kwargs())
+
+    def _core_kwargs(self) -> dict[str, Any]:
+        d = asdict(self)
+        for k, v in d.items():
+            if isinstance(v, np.generic):
+                d[k] = v.item()
+        return d
+
+
+class Forest:
+    """The ISA forest: fit on parts, save / load, pickle, votes of parts.
+
+    Args:
+        params: a ``ForestParams``; or pass its fields as keyword arguments.
+        n_threads: threads for training and traversal (None = all cores, or RAYON_NUM_THREADS).
+            The trained model does not depend on it.
+    """
+
+    def __init__(self, params: ForestParams | None = None, *, n_threads: int | None = None, **kwargs: Any) -> None:
+        if params is not None and kwargs:
+            raise InvalidParameterError("pass either params or keyword hyper-parameters, not both")
+        self.params = params if params is not None else ForestParams(**kwargs)
+        self._core = _core.Forest(n_threads=n_threads, **self.params._core_kwargs())
+
+    # -- training ----------------------------------------------------------------------------
+    def fit(
+        self,
+        images: list[np.ndarray],
+        parts: np.ndarray,
+        offsets: np.ndarray,
+        rotations: np.ndarray,
+        link_angles: np.ndarray | None = None,
+        node_offsets: np.ndarray | None = None,
+        metadata: dict[str, Any] | str | None = None,
+    ) -> Forest:
+        """Trains on parts (see the module docstring for the arrays) and returns ``self``.
+
+        ``metadata`` (a JSON-serialisable dict or a JSON string: category, SSC, skeleton, size...)
+        is stored verbatim in the model file.
+        """
+        meta = _metadata_json(metadata)
+        self._core.fit(list(images), parts, offsets, rotations, link_angles, node_offsets, meta)
+        return self
+
+    # -- files -------------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Writes the model file atomically (temporary file + rename)."""
+        self._core.save(os.fspath(path))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], *, n_threads: int | None = None) -> Forest:
+        """Reads a model file (``ModelFormatError`` if it is not a valid isa model)."""
+        return cls._wrap(_core.Forest.load(os.fspath(path), n_threads=n_threads))
+
+    def to_bytes(self) -> bytes:
+        """The model-file bytes."""
+        return self._core.to_bytes()
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> Forest:
+        """Parses model-file bytes."""
+        return cls._wrap(_core.Forest.from_bytes(bytes(data)))
+
+    @classmethod
+    def _wrap(cls, core: _core.Forest) -> Forest:
+        self = cls.__new__(cls)
+        self.params = ForestParams(**json.loads(core.params_json))
+        self._core = core
+        return self
+
+    # -- inference ---------------------------------------------------------------------------
+    def apply(self, images: list[np.ndarray], parts: np.ndarray) -> np.ndarray:
+        """Leaf index of every part in every tree, (P, n_trees) int32."""
+        return self._core.apply(list(images), parts)
+
+    def votes(self, images: list[np.ndarray], parts: np.ndarray) -> dict[str, np.ndarray]:
+        """Every leaf vote of every part through every tree.
+
+        Returns flat arrays over the V votes: ``part`` (V,) int32, ``tree`` (V,) int32,
+        ``weight`` (V,) float32 (the mode's share of its leaf), ``offset`` (V, 3) float32 metres,
+        ``rotation`` (V, 4) float32 (w, x, y, z), ordered by part, tree, decreasing weight.
+        """
+        return self._core.votes(list(images), parts)
+
+    def leaf_votes(self, tree: int, leaf: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(weights (k,), offsets (k, 3), rotations (k, 4)) of one leaf."""
+        return self._core.leaf_votes(tree, leaf)
+
+    # -- properties --------------------------------------------------------------------------
+    @property
+    def is_fitted(self) -> bool:
+        return self._core.is_fitted
+
+    @property
+    def metadata(self) -> dict[str, Any] | str:
+        """The metadata stored with the model (parsed JSON, or the raw string if not JSON)."""
+        raw = self._core.metadata
+        try:
+            return json.loads(raw)
+        except ValueError:
+            return raw
+
+    @property
+    def n_trees(self) -> int:
+        return self._core.n_trees
+
+    @property
+    def n_threads(self) -> int | None:
+        return self._core.n_threads
+
+    @n_threads.setter
+    def n_threads(self, n: int | None) -> None:
+        self._core.n_threads = n
+
+    @property
+    def n_nodes(self) -> list[int]:
+        return self._core.n_nodes
+
+    @property
+    def n_leaves(self) -> list[int]:
+        return self._core.n_leaves
+
+    @property
+    def depths(self) -> list[int]:
+        return self._core.depths
+
+    @property
+    def core(self) -> _core.Forest:
+        """The underlying ``isa._core.Forest``."""
+        return self._core
+
+    def __repr__(self) -> str:
+        return repr(self._core)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Forest):
+            return NotImplemented
+        if not (self.is_fitted and other.is_fitted):
+            return self.params == other.params and self.is_fitted == other.is_fitted
+        return self.to_bytes() == other.to_bytes()
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def _metadata_json(metadata: dict[str, Any] | str | None) -> str:
+    if metadata is None:
+        return "{}"
+    if isinstance(metadata, str):
+        try:
+            json.loads(metadata)
+        except ValueError as e:
+            raise InvalidParameterError(f"metadata: not a JSON string ({e})") from None
+        return metadata
+    try:
+        return json.dumps(metadata, sort_keys=True, default=_json_default)
+    except TypeError as e:
+        raise InvalidParameterError(f"metadata: not JSON-serialisable ({e})") from None
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"{type(o).__name__} is not JSON-serialisable")
+
+
+sample_parts = _core.sample_parts
+depth_features = _core.depth_features
+
+__all__ = ["QUALITIES", "Forest", "ForestParams", "depth_features", "sample_parts"]
