@@ -157,3 +157,75 @@ def split_search(
     """Benchmark hook: the forest's split search of one node holding all P parts, candidates =
     columns of ``features`` (P, C). Returns candidate, threshold, gain, gains [Q1, Q2, Q3],
     n_left and seconds (search only)."""
+
+# ---- Inference (crates/isa-py/src/vote.rs; owned by the inference work) --------------------
+# Keyword parameters of predict / image_votes: stride (4), min_depth (0 m), max_depth (None m),
+# min_leaf_weight (0) and the mode-finding ones shared with find_modes: position_bandwidth
+# (0.08 m), rotation_bandwidth (0.5 rad), max_hypotheses (5), nms_radius (0.25 m), max_seeds
+# (64), max_iterations (50), rotations_per_position (1), rotation_candidates (128),
+# rotation_eval_votes (2048), min_support (3). Unknown names raise InvalidParameterError.
+
+#: Version of the training-set (.isat) file format written by ``write_trainset``.
+TRAINSET_FORMAT_VERSION: int
+
+def predict(
+    forest: Forest | Any,
+    depth: npt.NDArray[np.uint16] | npt.NDArray[np.float32] | npt.NDArray[np.float64],
+    K: npt.ArrayLike | Any,
+    *,
+    n_threads: int | None = None,
+    **params: Any,
+) -> list[dict[str, Any]]:
+    """Ranked 6D pose hypotheses of the objects in a whole depth image (paper Eq. 12-13): parts
+    on a ``stride`` grid of valid pixels go down every tree, each leaf vote (part's 3D point +
+    offset, rotation, weight / n_trees) is accumulated, modes are found by mean-shift in 3D then
+    on SO(3). ``forest``: ``_core.Forest`` or ``isa.forest.Forest``; ``depth`` (H, W) uint16 mm or
+    float metres (0 = missing); ``K`` a 3x3 matrix, (fx, fy, cx, cy) or ``isa.camera.Intrinsics``.
+    Each hypothesis, best first: ``R`` (3, 3), ``t`` (3,) metres (SSC in the camera frame,
+    X_cam = R X_obj + t), ``quaternion`` (w, x, y, z; w >= 0), ``score`` (joint kernel density),
+    ``support`` (votes in both kernels), ``position_score``, ``position_support``. GIL released;
+    deterministic for any ``n_threads`` (None = the forest's setting)."""
+
+def image_votes(
+    forest: Forest | Any,
+    depth: npt.NDArray[np.uint16] | npt.NDArray[np.float32] | npt.NDArray[np.float64],
+    K: npt.ArrayLike | Any,
+    *,
+    n_threads: int | None = None,
+    **params: Any,
+) -> dict[str, Any]:
+    """Every vote ``predict`` would aggregate (for plots): ``position`` (V, 3) float32 metres,
+    ``rotation`` (V, 4) float32, ``weight`` (V,) float32, ``pixel`` (V, 2) int32 (u, v) of the
+    casting part, ``tree`` (V,) int32, ``n_parts`` int."""
+
+def find_modes(
+    positions: npt.NDArray[np.float32],
+    rotations: npt.NDArray[np.float32],
+    weights: npt.NDArray[np.float32] | None = None,
+    *,
+    n_threads: int | None = None,
+    **params: Any,
+) -> list[dict[str, Any]]:
+    """Mode finding alone on given votes: positions (V, 3), rotations (V, 4) (w, x, y, z, any
+    sign), weights (V,) or None (all 1). Returns hypotheses as ``predict``."""
+
+def default_predict_params() -> dict[str, Any]:
+    """The default inference parameters (flat: image-level and mode-finding keys)."""
+
+def write_trainset(
+    path: str | os.PathLike[str],
+    images: list[npt.NDArray[np.uint16]],
+    parts: npt.NDArray[np.int32],
+    offsets: npt.NDArray[np.float32],
+    rotations: npt.NDArray[np.float32],
+    link_angles: npt.NDArray[np.float32] | None = None,
+    node_offsets: npt.NDArray[np.float32] | None = None,
+    metadata: str = "{}",
+) -> None:
+    """Validates and writes a training-set file (.isat) for ``isa train``: the arguments of
+    ``Forest.fit``. Format: versioned, checksummed container of NPY arrays (see
+    ``isa_core::trainset_io`` and docs/CLI.md). Atomic (temporary file + rename)."""
+
+def read_trainset(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Reads a training-set file: ``images`` (list of uint16 arrays), ``parts``, ``offsets``,
+    ``rotations``, ``link_angles`` / ``node_offsets`` (or None), ``metadata`` (str)."""

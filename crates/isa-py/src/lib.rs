@@ -7,6 +7,7 @@ pub mod arrays;
 pub mod errors;
 pub mod forest;
 pub mod hooks;
+pub mod vote;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -20,5 +21,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(hooks::criterion_gains, m)?)?;
     m.add_function(wrap_pyfunction!(hooks::criterion_targets, m)?)?;
     m.add_function(wrap_pyfunction!(hooks::split_search, m)?)?;
+    vote::register(m)?; // inference: predict, image_votes, find_modes, trainset files
     Ok(())
 }
