@@ -1,0 +1,147 @@
+"""Curve-skeleton extraction against independent truths: bar frames whose axes are known
+analytically (clean and deliberately messy meshes), and procedural objects with ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from isa.procedural import generate
+from isa.skeleton import extract_skeleton, solid_centre_of_mass, voxelize_solid
+
+
+def _bar(p0, p1, r=0.02) -> trimesh.Trimesh:
+    """Square bar of half-width r between p0 and p1 (axis-aligned bars only)."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    lo, hi = np.minimum(p0, p1) - r, np.maximum(p0, p1) + r
+    return trimesh.creation.box(bounds=[lo, hi])
+
+
+# A stool-like frame: 4 legs, a rectangular seat frame (a loop) and two back posts with a top rail.
+W, D, H, B = 0.4, 0.36, 0.45, 0.4
+_AXES = (
+    [((sx * W / 2, sy * D / 2, 0.0), (sx * W / 2, sy * D / 2, H)) for sx in (-1, 1) for sy in (-1, 1)]
+    + [((-W / 2, sy * D / 2, H), (W / 2, sy * D / 2, H)) for sy in (-1, 1)]
+    + [((sx * W / 2, -D / 2, H), (sx * W / 2, D / 2, H)) for sx in (-1, 1)]
+    + [((sx * W / 2, D / 2, H), (sx * W / 2, D / 2, H + B)) for sx in (-1, 1)]
+    + [((-W / 2, D / 2, H + B), (W / 2, D / 2, H + B))]
+)
+_KEY = np.array(
+    [(sx * W / 2, sy * D / 2, z) for sx in (-1, 1) for sy in (-1, 1) for z in (0.0, H)]
+    + [(sx * W / 2, D / 2, H + B) for sx in (-1, 1)]
+)
+
+
+def _frame_mesh(messy: bool, seed: int = 0) -> trimesh.Trimesh:
+    parts = [_bar(a, b) for a, b in _AXES]
+    mesh = trimesh.util.concatenate(parts)  # overlapping closed boxes: internal faces everywhere
+    if messy:
+        rng = np.random.default_rng(seed)
+        faces = mesh.faces[rng.random(len(mesh.faces)) > 0.08]  # ~8% of triangles missing (holes)
+        faces = np.concatenate([faces, faces[:40]])  # duplicate faces
+        verts = np.concatenate([mesh.vertices, mesh.vertices[:30]])  # unused duplicate vertices
+        mesh = trimesh.Trimesh(verts, faces, process=False)
+    return mesh
+
+
+def _seg_dist(P, A, B):
+    d = B - A
+    t = np.clip(np.einsum("nmk,mk->nm", P[:, None] - A[None], d) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
+    return np.linalg.norm(P[:, None] - (A[None] + t[..., None] * d[None]), axis=2).min(1)
+
+
+@pytest.mark.parametrize("messy", [False, True])
+def test_bar_frame_skeleton_follows_the_axes(messy):
+    mesh = _frame_mesh(messy)
+    g = extract_skeleton(mesh)
+    diam = float(np.linalg.norm(mesh.extents))
+    A = np.array([a for a, _ in _AXES])
+    Bx = np.array([b for _, b in _AXES])
+    d = _seg_dist(g.nodes, A, Bx) / diam
+    assert d.mean() < 0.02, f"mean node distance to the bar axes {d.mean():.3f} of the diameter"
+    assert d.max() < 0.06
+    # Every bar end / junction has an extracted node near it (the seat loop, feet, back top).
+    near = np.linalg.norm(_KEY[:, None] - g.nodes[None], axis=2).min(1) / diam
+    assert near.max() < 0.08, f"key points missed: {np.round(near, 3)}"
+    # The seat frame and the back frame are loops: a tree would have links == nodes - 1.
+    assert len(g.links) >= len(g.nodes) + 1
+    kinds = np.array(g.meta["kind"])
+    assert (kinds == "end").sum() == 4  # the four feet
+
+
+def test_deterministic_given_seed():
+    mesh = _frame_mesh(True)
+    a, b = extract_skeleton(mesh, seed=3), extract_skeleton(mesh, seed=3)
+    assert np.array_equal(a.nodes, b.nodes) and np.array_equal(a.links, b.links)
+
+
+def test_solid_fill_and_centre_of_mass_of_holed_box():
+    # A finely triangulated box with ~5% of its small triangles missing (holes of about a voxel)
+    # still fills to its volume, and its solid COM is the box centre.
+    box = trimesh.creation.box(extents=[0.4, 0.3, 0.5])
+    v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.02)
+    keep = np.random.default_rng(0).random(len(f)) > 0.05
+    holed = trimesh.Trimesh(v, f[keep], process=False)
+    pitch = 0.01
+    solid, origin = voxelize_solid(holed, pitch)
+    assert solid.sum() * pitch**3 == pytest.approx(0.4 * 0.3 * 0.5, rel=0.12)
+    np.testing.assert_allclose(solid_centre_of_mass(holed), [0, 0, 0], atol=0.01)
+    # The free space inside a flat ring of bars is not filled (a seat frame stays a loop).
+    ring = trimesh.util.concatenate([_bar(a, b) for a, b in _AXES[4:8]])
+    solid, origin = voxelize_solid(ring, pitch)
+    centre = np.round((np.array([0.0, 0.0, H]) - origin) / pitch).astype(int)
+    assert not solid[tuple(centre)]
+    # An L of two boxes: the volume-weighted centroid.
+    a = trimesh.creation.box(bounds=[[0, 0, 0], [0.6, 0.2, 0.2]])
+    b = trimesh.creation.box(bounds=[[0, 0, 0.2], [0.2, 0.2, 0.8]])
+    L = trimesh.util.concatenate([a, b])
+    va, vb = 0.6 * 0.2 * 0.2, 0.2 * 0.2 * 0.6
+    truth = (va * np.array([0.3, 0.1, 0.1]) + vb * np.array([0.1, 0.1, 0.5])) / (va + vb)
+    np.testing.assert_allclose(solid_centre_of_mass(L), truth, atol=0.012)
+
+
+def _gt_scores(category: str, seeds):
+    means, keys = [], []
+    for s in seeds:
+        o = generate(category, s)
+        gt = o.skeleton
+        g = extract_skeleton(o.mesh)
+        diam = float(np.linalg.norm(o.mesh.extents))
+        means.append(_seg_dist(g.nodes, gt.nodes[gt.links[:, 0]], gt.nodes[gt.links[:, 1]]).mean() / diam)
+        deg = np.bincount(gt.links.ravel(), minlength=len(gt.nodes))
+        key = gt.nodes[deg != 2]  # true junctions and endpoints
+        keys.append(np.linalg.norm(key[:, None] - g.nodes[None], axis=2).min(1).max() / diam)
+    return np.array(means), np.array(keys)
+
+
+def test_procedural_chairs_and_tables_against_ground_truth():
+    # Issue #3's claims. Measured over seeds 0-7: mean node distance to the true skeleton 3.6%
+    # (chairs) and 5.0% (tables; pedestal tables, whose true "legs" are not physical members,
+    # reach 10%) of the diameter, 4.3% together; worst true junction/endpoint 9.1% / 8.4%.
+    m_c, k_c = _gt_scores("chair", range(8))
+    m_t, k_t = _gt_scores("table", range(8))
+    assert np.concatenate([m_c, m_t]).mean() < 0.05
+    assert k_c.max() < 0.10 and k_t.max() < 0.10
+
+
+def test_procedural_beds_and_toilets_bounded():
+    # Beds and toilets put ground-truth nodes on surfaces (mattress top, rim, floor corners of a
+    # solid base), which no medial skeleton reaches: measured mean 9.6% / 9.7%, worst key point
+    # 12.4% / 14.9% (seeds 0-7). These bounds catch regressions; they are not the 5% claim.
+    m_b, k_b = _gt_scores("bed", [1])  # measured 10.7%, 9.7%
+    m_o, k_o = _gt_scores("toilet", [1])  # measured 10.4%, 13.1%
+    assert m_b.mean() < 0.12 and m_o.mean() < 0.12
+    assert k_b.max() < 0.16 and k_o.max() < 0.16
+
+
+def test_errors_name_the_argument():
+    mesh = _frame_mesh(False)
+    with pytest.raises(ValueError, match="resolution"):
+        extract_skeleton(mesh, resolution=4)
+    with pytest.raises(ValueError, match="spacing"):
+        extract_skeleton(mesh, spacing=0)
+    with pytest.raises(TypeError, match="mesh"):
+        extract_skeleton("chair.off")
+    with pytest.raises(ValueError, match="pitch"):
+        voxelize_solid(mesh, 0.0)
