@@ -142,7 +142,9 @@ def _cover(solid: np.ndarray, skel: np.ndarray, tau: float, max_branches: int = 
     if len(src) == 0:
         return skel
     skel = skel.copy()
-    dist, pred, _ = dijkstra(g, directed=False, indices=src, min_only=True, return_predecessors=True)
+    # The graph is built symmetric, so directed=True gives undirected distances without scipy
+    # re-symmetrising (a CSR->CSC copy) on every call.
+    dist, pred, _ = dijkstra(g, directed=True, indices=src, min_only=True, return_predecessors=True)
     for _ in range(max_branches):
         far = int(np.argmax(np.where(np.isfinite(dist), dist, -1)))
         if not np.isfinite(dist[far]) or dist[far] <= tau:
@@ -152,7 +154,7 @@ def _cover(solid: np.ndarray, skel: np.ndarray, tau: float, max_branches: int = 
             path.append(int(pred[path[-1]]))
         path = np.array(path)
         skel[tuple(coords[path].T)] = True
-        d2, p2, _ = dijkstra(g, directed=False, indices=path, min_only=True, return_predecessors=True, limit=dist[far])
+        d2, p2, _ = dijkstra(g, directed=True, indices=path, min_only=True, return_predecessors=True, limit=dist[far])
         better = d2 < dist
         dist[better] = d2[better]
         pred[better] = p2[better]

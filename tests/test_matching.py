@@ -1,0 +1,160 @@
+"""Graph matching: raw skeletons onto a category template, checked against procedural ground truth
+(semantic node names), plus the plain quadratic-assignment matcher on permuted graphs."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from isa.matching import (
+    calibrate_template,
+    match_graphs_qap,
+    match_skeleton,
+    normalise,
+    template_from_ground_truth,
+    template_from_instances,
+)
+from isa.procedural import generate
+from isa.skeleton import extract_skeleton
+from isa.skeleton_graph import SkeletonGraph
+
+
+@pytest.fixture(scope="module")
+def chairs():
+    objs = [generate("chair", s) for s in range(6)]
+    return objs, [extract_skeleton(o.mesh) for o in objs]
+
+
+@pytest.fixture(scope="module")
+def tables():
+    objs = [generate("table", s) for s in range(6)]
+    return objs, [extract_skeleton(o.mesh) for o in objs]
+
+
+def _gt_template(category: str, n: int = 12) -> SkeletonGraph:
+    train = [generate(category, (7, i)) for i in range(n)]  # disjoint from the evaluated seeds
+    return template_from_ground_truth([o.skeleton for o in train], [o.mesh.bounds for o in train])
+
+
+def _semantic_accuracy(obj, matched: SkeletonGraph) -> float:
+    """Fraction of template nodes placed nearest to the true node of the same name (or within 5%
+    of the diameter of it, for true nodes that nearly coincide, e.g. a toilet's rim back and tank
+    bottom)."""
+    gt = obj.skeleton
+    assert matched.names == gt.names
+    D = np.linalg.norm(matched.nodes[:, None] - gt.nodes[None], axis=2)
+    diam = np.linalg.norm(obj.mesh.extents)
+    ok = (D.argmin(1) == np.arange(len(gt.nodes))) | (np.diag(D) < 0.05 * diam)
+    return float(ok.mean())
+
+
+@pytest.mark.parametrize("category", ["chair", "table"])
+def test_semantic_matching_on_procedural_instances(category, chairs, tables):
+    objs, raws = chairs if category == "chair" else tables
+    T = _gt_template(category)
+    acc = [_semantic_accuracy(o, match_skeleton(r, T)) for o, r in zip(objs, raws)]
+    # Issue #3: >= 90% of template nodes on the right semantic node (measured 100% on seeds 0-11).
+    assert np.mean(acc) >= 0.9, acc
+    assert min(acc) >= 0.75, acc
+
+
+def test_calibration_on_toilets_raises_accuracy():
+    # Toilet ground truth marks surfaces (rim, lid); calibration learns the per-node offset from
+    # the medial match on training instances. Measured on seeds 0-11: 87% plain -> 99% calibrated.
+    train = [generate("toilet", (7, i)) for i in range(3)]
+    T = template_from_ground_truth([o.skeleton for o in train], [o.mesh.bounds for o in train])
+    Tc = calibrate_template(T, [extract_skeleton(o.mesh) for o in train], [o.skeleton for o in train], [o.mesh.bounds for o in train])
+    test = [generate("toilet", s) for s in (0, 2)]
+    raws = [extract_skeleton(o.mesh) for o in test]
+    acc_c = np.mean([_semantic_accuracy(o, match_skeleton(r, Tc)) for o, r in zip(test, raws)])
+    acc_p = np.mean([_semantic_accuracy(o, match_skeleton(r, T)) for o, r in zip(test, raws)])
+    assert acc_c >= 0.9 and acc_c >= acc_p
+
+
+def test_matching_ignores_raw_node_order(chairs):
+    objs, raws = chairs
+    raw = raws[0]
+    T = _gt_template("chair")
+    perm = np.random.default_rng(0).permutation(len(raw.nodes))
+    inv = np.argsort(perm)
+    shuffled = SkeletonGraph(
+        raw.nodes[perm], inv[raw.links], None, {**raw.meta, "kind": [raw.meta["kind"][i] for i in perm]}
+    )
+    a, b = match_skeleton(raw, T), match_skeleton(shuffled, T)
+    np.testing.assert_allclose(a.nodes, b.nodes)
+
+
+def test_missing_part_is_flagged_and_completed(chairs):
+    objs, raws = chairs
+    obj, raw = objs[0], raws[0]
+    T = _gt_template("chair")
+    foot = obj.skeleton.names.index("foot_front_left")
+    true_foot = obj.skeleton.nodes[foot]
+    diam = np.linalg.norm(obj.mesh.extents)
+    # Cut the lower half of that leg out of the raw skeleton.
+    gone = np.linalg.norm(raw.nodes - true_foot, axis=1) < 0.25 * (obj.mesh.bounds[1, 2] - obj.mesh.bounds[0, 2])
+    keep = np.flatnonzero(~gone)
+    remap = -np.ones(len(raw.nodes), int)
+    remap[keep] = np.arange(len(keep))
+    links = remap[raw.links]
+    cut = SkeletonGraph(raw.nodes[keep], links[(links >= 0).all(1)], None, {**raw.meta, "kind": [raw.meta["kind"][i] for i in keep]})
+    m = match_skeleton(cut, T)
+    assert m.meta["matched"][foot] is False
+    # Placed by the fitted template map: still near the true foot.
+    assert np.linalg.norm(m.nodes[foot] - true_foot) < 0.15 * diam
+    full = match_skeleton(raw, T)
+    # Nodes away from the cut leg keep their place (its seat corner may move along the seat).
+    linked = set(T.links[(T.links == foot).any(1)].ravel().tolist())
+    others = [i for i in range(len(T.nodes)) if i not in linked]
+    assert _semantic_accuracy(obj, full) == 1.0
+    np.testing.assert_allclose(m.nodes[others], full.nodes[others], atol=0.05 * diam)
+
+
+def test_template_from_instances_is_consistent(chairs):
+    # Without ground truth, node i of the learnt template must land on the same semantic place on
+    # the instances (measured 91% on 8 chairs with 12 nodes).
+    objs, raws = chairs
+    T = template_from_instances(raws, n_nodes=12)
+    assert len(T.nodes) == 12 and T.names[0] == "node_00"
+    labels = []
+    for o, r in zip(objs, raws):
+        m = match_skeleton(r, T)
+        labels.append(np.linalg.norm(m.nodes[:, None] - o.skeleton.nodes[None], axis=2).argmin(1))
+    labels = np.array(labels)
+    consistency = np.mean([Counter(labels[:, i]).most_common(1)[0][1] / len(objs) for i in range(12)])
+    assert consistency >= 0.8
+
+
+def test_qap_recovers_a_permuted_weighted_graph():
+    gt = generate("chair", 3).skeleton
+    A = gt.adjacency(weighted=True)
+    n = len(A)
+    rng = np.random.default_rng(1)
+    perm = rng.permutation(n)  # B's node perm[i] is A's node i
+    B = np.zeros_like(A)
+    B[np.ix_(perm, perm)] = A
+    found = match_graphs_qap(A, B, n_init=6)
+    score = lambda p: float((A * B[np.ix_(p, p)]).sum())
+    # A chair is left/right symmetric, so without seeds any optimum is acceptable ...
+    assert score(found) == pytest.approx(score(perm))
+    # ... and two seed pairs on one side fix the symmetry: exact recovery.
+    left = [gt.names.index("foot_front_left"), gt.names.index("back_top_left")]
+    seeds = np.array([[i, perm[i]] for i in left])
+    assert np.array_equal(match_graphs_qap(A, B, seeds=seeds), perm)
+
+
+def test_normalise_and_errors():
+    b = np.array([[-1.0, 0.0, 0.0], [1.0, 2.0, 4.0]])
+    np.testing.assert_allclose(normalise([[1.0, 2.0, 4.0], [0, 1, 2]], b), [[0.5, 0.5, 0.5], [0, 0, 0]])
+    with pytest.raises(ValueError, match="bounds"):
+        normalise([[0, 0, 0]], [[0, 0, 0], [1, 0, 1]])
+    raw = SkeletonGraph(np.zeros((2, 3)), [[0, 1]])
+    T = _gt_template("chair", 2)
+    with pytest.raises(ValueError, match="bounds"):
+        match_skeleton(raw, T)
+    with pytest.raises(ValueError, match="sigma"):
+        match_skeleton(raw, T, b, sigma=0)
+    with pytest.raises(ValueError, match="A, B"):
+        match_graphs_qap(np.eye(3), np.eye(4))
