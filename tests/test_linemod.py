@@ -246,3 +246,22 @@ def test_bad_protocol_inputs_raise(chair_detector):
         linemod_recall([("x", 3)], [frame], ok)
     with pytest.raises(TypeError, match="intrinsics"):
         LinemodDetector(intrinsics=(1, 2))
+
+
+def test_bench_timing_function_reports_every_threshold(chair_views, chair_detector):
+    # benches/bench_linemod.py's linemod_timings is what the lead's ISA-vs-Linemod bench imports.
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benches" / "bench_linemod.py"
+    spec = importlib.util.spec_from_file_location("bench_linemod", path)
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = bench  # its dataclasses look their module up there
+    spec.loader.exec_module(bench)
+    depths = [chair_views[0][0], np.zeros_like(chair_views[0][0])]
+    out = bench.linemod_timings(chair_detector, depths, thresholds=(0, 80), repeats=2)
+    assert set(out) == {0, 80}
+    for r in out.values():
+        assert r["match_ms"].shape == (2,) and (r["match_ms"] > 0).all() and (r["opencv_ms"] > 0).all()
+    assert out[80]["matched"] == 0.5  # the empty frame matches nothing at 80 %
