@@ -71,7 +71,7 @@ def main() -> int:
     from isa.procedural import generate
     from isa.render import DepthRenderer
     from isa.skeleton import extract_skeleton
-    from isa.ssc import centre_of_mass, select_ssc
+    from isa.ssc import select_ssc
     from isa.views import training_views
 
     rows: list[tuple[str, float, str]] = []
@@ -102,7 +102,7 @@ def main() -> int:
     matched = [match_skeleton(r, tmpl) for r in raws]
     t_match = step("matching to the template", t0, f"({np.mean([np.mean(m.meta['matched']) for m in matched]) * 100:.0f}% nodes matched)")
     t0 = time.perf_counter()
-    coms = np.array([centre_of_mass(m) for m in meshes])
+    coms = np.array([r.meta["com"] for r in raws])  # the extraction's solid, as centre_of_mass()
     ssc = select_ssc(matched, coms)
     sscs = np.array([ssc.point(m) for m in matched])
     t_ssc = step("COMs + SSC vote", t0, f"(SSC = {', '.join(tmpl.names[i] for i in ssc.nodes)}; votes {ssc.votes.max()}/{len(meshes)})")

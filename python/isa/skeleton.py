@@ -393,7 +393,8 @@ def extract_skeleton(
     skeleton (plates). ``seed`` fixes the surface sampling (the result is deterministic given it).
 
     ``meta`` holds ``kind`` (per node: "end", "junction", "inner"), ``pitch``, ``diameter`` (the
-    bounding-box diagonal) and ``bounds`` (the mesh's axis-aligned bounds, for matching).
+    bounding-box diagonal), ``bounds`` (the mesh's axis-aligned bounds, for matching) and ``com``
+    (the centre of mass of the voxelised solid, as :func:`solid_centre_of_mass`).
     """
     mesh = _as_mesh(mesh)
     if int(resolution) < 16:
@@ -404,6 +405,7 @@ def extract_skeleton(
     diam = float(np.linalg.norm(mesh.extents))
     pitch = float(np.max(mesh.extents)) / int(resolution)
     solid, origin = voxelize_solid(mesh, pitch, seed)
+    com = origin + np.argwhere(solid).mean(0) * pitch  # the solid's centre of mass, for the SSC
     skel = skeletonize(solid).astype(bool)
     skel = _cover(solid, skel, cover * diam / pitch)
     # Drop specks: components of the skeleton far smaller than the object.
@@ -488,6 +490,7 @@ def extract_skeleton(
             "pitch": pitch,
             "diameter": diam,
             "bounds": np.asarray(mesh.bounds, float).tolist(),
+            "com": com.tolist(),
             "method": "voxel-thinning",
         }
     )

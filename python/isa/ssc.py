@@ -149,6 +149,7 @@ def fit_category_ssc(
     if len(meshes) == 0:
         raise ValueError("meshes: need at least one training mesh")
     kw = dict(extract_kw or {})
-    matched = [match_skeleton(extract_skeleton(m, **kw), template, m.bounds) for m in meshes]
-    coms = np.array([centre_of_mass(m, kw.get("resolution", 80), kw.get("seed", 0)) for m in meshes])
+    raws = [extract_skeleton(m, **kw) for m in meshes]
+    matched = [match_skeleton(r, template, m.bounds) for r, m in zip(raws, meshes)]
+    coms = np.array([r.meta["com"] for r in raws])  # same voxelisation as centre_of_mass()
     return CategorySSC(template, select_ssc(matched, coms), kw), matched, coms
