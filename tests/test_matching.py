@@ -158,3 +158,38 @@ def test_normalise_and_errors():
         match_skeleton(raw, T, b, sigma=0)
     with pytest.raises(ValueError, match="A, B"):
         match_graphs_qap(np.eye(3), np.eye(4))
+
+
+def test_real_modelnet_chairs_match_sensibly(shared_data):
+    # No ground truth on real meshes, so check what any person would: feet at the bottom, back top
+    # at the top, seat in between, front corners in front of back corners (ModelNet front: -y).
+    from isa.meshes import prepare_mesh
+    from isa.modelnet import paper_instances
+
+    T = _gt_template("chair")
+    ix = {n: i for i, n in enumerate(T.names)}
+    for i, inst in enumerate(paper_instances(shared_data / "modelnet10", "chair")[:8]):
+        mesh = prepare_mesh(inst.path, "chair", seed=i)[0]
+        m = match_skeleton(extract_skeleton(mesh), T)
+        z = normalise(m.nodes, mesh.bounds)[:, 2] + 0.5  # 0 floor .. 1 top
+        y = m.nodes[:, 1]
+        feet = [ix[f"foot_{s}"] for s in ("front_left", "front_right", "back_left", "back_right")]
+        seat = [ix[f"seat_{s}"] for s in ("front_left", "front_right", "back_left", "back_right")]
+        tops = [ix["back_top_left"], ix["back_top_right"], ix["back_top_centre"]]
+        assert z[feet].max() < 0.2 and z[tops].min() > 0.7, inst.name
+        assert z[feet].max() < z[seat].min() and z[seat].max() < z[tops].min(), inst.name
+        assert y[seat[:2]].max() < y[seat[2:]].min(), inst.name
+
+
+def test_matched_grid_figure_shows_every_node(tmp_path):
+    from PIL import Image
+
+    from isa.figures.skeletons import _colours, matched_grid
+
+    objs = [generate("chair", s) for s in range(2)]
+    out = matched_grid([o.mesh for o in objs], [o.skeleton for o in objs], tmp_path / "grid.png")
+    img = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    # Every template node's colour is drawn (markers and legend), so all 12 colours are present.
+    for c in _colours(12):
+        rgb = np.round(np.array(c[:3]) * 255).astype(int)
+        assert (np.abs(img - rgb).sum(-1) < 12).any(), rgb
