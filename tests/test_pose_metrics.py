@@ -56,6 +56,20 @@ def test_diameter_of_a_box_is_its_diagonal():
     assert model_diameter(np.vstack([inner, corners])) == pytest.approx(np.sqrt(0.4**2 + 0.5**2 + 1.2**2))
 
 
+def test_model_points_diameter_of_a_mesh_box():
+    import trimesh
+
+    from isa.pose_metrics import model_points
+
+    box = trimesh.creation.box(extents=[0.4, 0.5, 1.2])
+    X = model_points(box, 500, seed=1)
+    assert np.all(np.abs(X) <= [0.2 + 1e-9, 0.25 + 1e-9, 0.6 + 1e-9])
+    assert model_diameter(X) == pytest.approx(np.sqrt(0.4**2 + 0.5**2 + 1.2**2))  # corners included
+    np.testing.assert_array_equal(X, model_points(box, 500, seed=1))
+    with pytest.raises(ValueError, match="mesh"):
+        model_points(np.zeros((3, 3)))
+
+
 def test_correct_threshold_and_recall():
     diam = 1.0
     assert is_correct(0.1, diam, 0.1) and not is_correct(0.1000001, diam, 0.1)

@@ -50,6 +50,21 @@ def average_distance(points, R_gt, t_gt, R_est, t_est) -> np.ndarray | float:
     return float(om) if np.ndim(om) == 0 else om
 
 
+def model_points(mesh, n: int = 4096, seed: int = 0) -> np.ndarray:
+    """X of Eq. 14: ``n`` seeded surface samples of ``mesh`` plus its vertices, in ``mesh``'s frame.
+
+    Pass the mesh in the object frame (origin at the category's SSC), as the poses are defined.
+    """
+    import trimesh
+
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError("mesh: expected a trimesh.Trimesh with triangles")
+    if n < 1:
+        raise ValueError(f"n: need at least one sample, got {n}")
+    pts, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    return np.concatenate([pts, mesh.vertices[np.unique(mesh.faces)]])
+
+
 def model_diameter(points) -> float:
     """Phi: the largest distance between two model points (exact, via the convex hull)."""
     X = _points(points)
