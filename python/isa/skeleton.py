@@ -407,6 +407,11 @@ def extract_skeleton(
     solid, origin = voxelize_solid(mesh, pitch, seed)
     com = origin + np.argwhere(solid).mean(0) * pitch  # the solid's centre of mass, for the SSC
     skel = skeletonize(solid).astype(bool)
+    if not skel.any():
+        # scikit-image's thinning can erase a simply connected blob (a box, a ball, a 2-voxel bar)
+        # entirely: start from its deepest voxel and let the coverage paths draw its extent.
+        edt = ndi.distance_transform_edt(solid)
+        skel[np.unravel_index(np.argmax(edt), edt.shape)] = True
     skel = _cover(solid, skel, cover * diam / pitch)
     # Drop specks: components of the skeleton far smaller than the object.
     lab, nlab = ndi.label(skel, structure=np.ones((3, 3, 3)))
@@ -415,8 +420,12 @@ def extract_skeleton(
         keep = np.flatnonzero(sizes >= max(3, 0.05 * sizes.max())) + 1
         skel = np.isin(lab, keep)
     coords, edges = _voxel_graph(skel)
-    if len(coords) == 0:
-        raise ValueError("mesh: voxelisation produced no skeleton (is the mesh empty or flat?)")
+    if len(edges) == 0:
+        # A compact blob smaller than ``cover``: its skeleton is one point.
+        c = origin + (coords.mean(0) if len(coords) else np.argwhere(solid).mean(0)) * pitch
+        meta = {"kind": ["end"], "pitch": pitch, "diameter": diam, "bounds": np.asarray(mesh.bounds, float).tolist(),
+                "com": com.tolist(), "method": "voxel-thinning"}
+        return SkeletonGraph(c[None], np.zeros((0, 2), np.int64), None, meta)
     xyz = origin + coords * pitch
     node_of, nn, branches = _trace_branches(len(coords), edges)
     pos = []
