@@ -393,6 +393,63 @@ pub fn logdet_inline(a: &mut [f64], d: usize, floor: f64) -> f64 {
     logdet
 }
 
+/// Regularised log-determinant of a `D ≤ 8` block from statistics (fully unrolled Cholesky;
+/// pivots clamped at `floor`; one logarithm of the pivot product).
+#[inline(always)]
+fn ld_fixed<const D: usize>(stats: &[f64], b: &Block, inv_n: f64, reg: f64, floor: f64) -> f64 {
+    let mut m = [0f64; D];
+    let st = &stats[b.start..b.start + D];
+    for i in 0..D {
+        m[i] = st[i] * inv_n;
+    }
+    let tri = &stats[b.tri..b.tri + D * (D + 1) / 2];
+    let mut a = [[0f64; D]; D];
+    let mut idx = 0;
+    for i in 0..D {
+        for j in i..D {
+            a[j][i] = tri[idx] * inv_n - m[i] * m[j];
+            idx += 1;
+        }
+        a[i][i] += reg;
+    }
+    let mut prod = 1.0f64;
+    for j in 0..D {
+        let mut p = a[j][j];
+        for k in 0..j {
+            p -= a[j][k] * a[j][k];
+        }
+        if !(p > floor) {
+            p = floor;
+        }
+        prod *= p;
+        let inv = 1.0 / p.sqrt();
+        for i in j + 1..D {
+            let mut v = a[i][j];
+            for k in 0..j {
+                v -= a[i][k] * a[j][k];
+            }
+            a[i][j] = v * inv;
+        }
+    }
+    if prod > 0.0 && prod.is_finite() {
+        prod.ln()
+    } else {
+        // Product out of range (extreme reg or data): redo with a sum of logarithms.
+        let mut c = [0f64; 64];
+        let mut idx = 0;
+        for i in 0..D {
+            for j in i..D {
+                let v = tri[idx] * inv_n - m[i] * m[j];
+                c[i * D + j] = v;
+                c[j * D + i] = v;
+                idx += 1;
+            }
+            c[i * D + i] += reg;
+        }
+        logdet_inline(&mut c[..D * D], D, floor)
+    }
+}
+
 /// The criterion of a forest: layout, ridge and which terms count.
 #[derive(Clone, Debug)]
 pub struct Criterion {
@@ -409,25 +466,37 @@ impl Criterion {
     }
 
     /// Regularised log-determinant of one block's covariance from statistics of `n` parts.
+    #[inline]
     pub fn block_logdet(&self, b: &Block, stats: &[f64], n: f64, scratch: &mut Vec<f64>) -> f64 {
-        let d = b.dim;
-        scratch.clear();
-        scratch.resize(d * d, 0.0);
         let inv_n = 1.0 / n;
-        let mut idx = b.tri;
-        for i in 0..d {
-            let mi = stats[b.start + i] * inv_n;
-            for j in i..d {
-                let mj = stats[b.start + j] * inv_n;
-                let c = stats[idx] * inv_n - mi * mj;
-                idx += 1;
-                // Column-major lower: element (j, i) at i * d + j; keep both halves for faer.
-                scratch[i * d + j] = c;
-                scratch[j * d + i] = c;
+        let (r, f) = (self.reg, self.reg * 1e-3);
+        match b.dim {
+            0 => 0.0,
+            1 => ld_fixed::<1>(stats, b, inv_n, r, f),
+            2 => ld_fixed::<2>(stats, b, inv_n, r, f),
+            3 => ld_fixed::<3>(stats, b, inv_n, r, f),
+            4 => ld_fixed::<4>(stats, b, inv_n, r, f),
+            5 => ld_fixed::<5>(stats, b, inv_n, r, f),
+            6 => ld_fixed::<6>(stats, b, inv_n, r, f),
+            7 => ld_fixed::<7>(stats, b, inv_n, r, f),
+            8 => ld_fixed::<8>(stats, b, inv_n, r, f),
+            d => {
+                scratch.clear();
+                scratch.resize(d * d, 0.0);
+                let mut idx = b.tri;
+                for i in 0..d {
+                    let mi = stats[b.start + i] * inv_n;
+                    for j in i..d {
+                        let c = stats[idx] * inv_n - mi * stats[b.start + j] * inv_n;
+                        idx += 1;
+                        scratch[i * d + j] = c;
+                        scratch[j * d + i] = c;
+                    }
+                    scratch[i * d + i] += self.reg;
+                }
+                logdet_spd(scratch, d, f)
             }
-            scratch[i * d + i] += self.reg;
         }
-        logdet_spd(scratch, d, self.reg * 1e-3)
     }
 
     /// Node entropies `[H1, H2, H3]` from statistics of `n ≥ 1` parts.

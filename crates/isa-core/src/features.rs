@@ -26,10 +26,18 @@ pub struct Feature {
     pub v: [f32; 2],
 }
 
+/// `floor(v)` as i32 without a libm call (baseline x86-64 has no SSE4.1 `roundss`); exact for
+/// every finite `v` within the i32 range (offsets are at most 1e5 px·m / 1 mm).
+#[inline(always)]
+fn floor_i32(v: f32) -> i32 {
+    let t = v as i32;
+    t - ((t as f32) > v) as i32
+}
+
 #[inline(always)]
 fn probe(img: &ImageRef<'_>, x: i32, y: i32, off: [f32; 2], inv: f32) -> f32 {
-    let px = x + (off[0] * inv + 0.5).floor() as i32;
-    let py = y + (off[1] * inv + 0.5).floor() as i32;
+    let px = x + floor_i32(off[0] * inv + 0.5);
+    let py = y + floor_i32(off[1] * inv + 0.5);
     let d = img.get(px, py);
     if d == 0 {
         BACKGROUND_MM
@@ -56,6 +64,35 @@ impl Feature {
             return 0.0;
         }
         self.eval_at(&img, p[1], p[2], d)
+    }
+}
+
+/// A part with its image and centre-depth normalisation resolved once, for evaluating many
+/// candidates on it.
+#[derive(Clone, Copy, Debug)]
+pub struct PartGeom<'a> {
+    img: ImageRef<'a>,
+    x: i32,
+    y: i32,
+    /// 1000 / D_mm(w), or 0 for a part without depth (then every feature is 0).
+    inv: f32,
+}
+
+impl<'a> PartGeom<'a> {
+    #[inline]
+    pub fn new(store: &'a DepthStore, p: &Part) -> Self {
+        let img = store.image(p[0] as usize);
+        let d = img.get(p[1], p[2]);
+        PartGeom { img, x: p[1], y: p[2], inv: if d == 0 { 0.0 } else { 1000.0f32 / d as f32 } }
+    }
+
+    /// Same value as [`Feature::eval`] on this part.
+    #[inline(always)]
+    pub fn eval(&self, f: &Feature) -> f32 {
+        if self.inv == 0.0 {
+            return 0.0;
+        }
+        probe(&self.img, self.x, self.y, f.u, self.inv) - probe(&self.img, self.x, self.y, f.v, self.inv)
     }
 }
 
@@ -100,5 +137,13 @@ mod tests {
         // Rounding: 1.0 px·m at 2 m = 0.5 px rounds up to 1.
         let f = Feature { u: [1.0, 0.0], v: [-1.0, 0.0] };
         assert_eq!(f.eval(&s, &p), 1500.0 - 2000.0);
+        assert_eq!(PartGeom::new(&s, &p).eval(&f), f.eval(&s, &p));
+    }
+
+    #[test]
+    fn floor_matches_std() {
+        for v in [-3.5f32, -3.0, -2.9, -0.5, -0.0, 0.0, 0.49, 0.5, 1.0, 2.5, 1e5, -1e5, 123456.7] {
+            assert_eq!(floor_i32(v), v.floor() as i32, "{v}");
+        }
     }
 }

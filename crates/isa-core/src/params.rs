@@ -150,8 +150,8 @@ impl ForestParams {
         if self.n_candidates == 0 || self.n_candidates > 100_000 {
             return bad(format!("n_candidates must be in 1..=100000, got {}", self.n_candidates));
         }
-        if self.n_thresholds == 0 || self.n_thresholds > 1024 {
-            return bad(format!("n_thresholds must be in 1..=1024, got {}", self.n_thresholds));
+        if self.n_thresholds == 0 || self.n_thresholds > 255 {
+            return bad(format!("n_thresholds must be in 1..=255, got {}", self.n_thresholds));
         }
         if !(self.max_offset.is_finite() && self.max_offset > 0.0 && self.max_offset <= 1e5) {
             return bad(format!("max_offset must be in (0, 1e5] pixel·metres, got {}", self.max_offset));

@@ -24,7 +24,7 @@ use rayon::prelude::*;
 
 use crate::criterion::{Criterion, Targets};
 use crate::depth::{DepthStore, Part};
-use crate::features::Feature;
+use crate::features::{Feature, PartGeom};
 use crate::params::ForestParams;
 use crate::rng::mix;
 use crate::splitter::{best_split, SplitConfig};
@@ -148,7 +148,8 @@ fn process_node(ctx: &TrainContext<'_>, tree: usize, node_id: usize, depth: usiz
     };
     let store = ctx.store;
     let parts = ctx.parts;
-    let feat = |c: usize, i: u32| cands[c].eval(store, &parts[i as usize]);
+    let geom: Vec<PartGeom<'_>> = subset.iter().map(|&i| PartGeom::new(store, &parts[i as usize])).collect();
+    let feat = |c: usize, j: usize| geom[j].eval(&cands[c]);
     let cfg = SplitConfig { n_thresholds: p.n_thresholds, min_samples_leaf: p.min_samples_leaf, parallel: true };
     let best = best_split(ctx.crit, ctx.targets, &subset, cands.len(), &feat, &cfg, node_seed);
     drop(subset);

@@ -190,7 +190,15 @@ pub fn split_search<'py>(
             let crit = Criterion::new(t.layout.clone(), reg);
             let subset: Vec<u32> = (0..n as u32).collect();
             let cfg = SplitConfig { n_thresholds, min_samples_leaf, parallel: true };
-            let feat = |k: usize, p: u32| fs[p as usize * c + k];
+            // Candidate-major copy so each candidate's column is contiguous (as the forest's
+            // on-the-fly features are); not timed.
+            let mut cm = vec![0f32; n * c];
+            for p in 0..n {
+                for k in 0..c {
+                    cm[k * n + p] = fs[p * c + k];
+                }
+            }
+            let feat = |k: usize, j: usize| cm[k * n + j];
             let t0 = std::time::Instant::now();
             let b = best_split(&crit, &t, &subset, c, &feat, &cfg, seed);
             Ok((b, t0.elapsed().as_secs_f64()))
