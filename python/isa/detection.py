@@ -172,7 +172,8 @@ class PlaneParams:
     ``min_wall_fraction``, and its points must span ``min_wall_height`` vertically and
     ``min_wall_width`` along it (so bed sides and cupboard fronts are kept); the best
     ``wall_candidates`` distinct hypotheses are checked in turn. ``samples`` points are used to
-    score ``ransac_iterations`` wall hypotheses; ``seed`` makes it reproducible."""
+    score ``ransac_iterations`` wall hypotheses and ``check_samples`` to screen candidates before
+    the test on every point; ``seed`` makes it reproducible."""
 
     tolerance: tuple[float, float] = (0.03, 0.0045)
     min_floor_fraction: float = 0.03
@@ -185,6 +186,7 @@ class PlaneParams:
     wall_candidates: int = 8
     ransac_iterations: int = 200
     samples: int = 5000
+    check_samples: int = 40000
     seed: int = 0
 
 
@@ -262,23 +264,26 @@ def _find_wall(p: np.ndarray, tol: np.ndarray, params: PlaneParams, rng: np.rand
     # Written out, not a (k, 2) @ (2, N) matmul: BLAS threading makes that slow on a busy machine.
     d = np.abs(nrm[:, :1] * ps[None, :, 0] + nrm[:, 1:] * ps[None, :, 1] + off[:, None])
     score = (d < ts[None, :]).sum(1)
+    # A mid-size subsample screens candidates before the (costly) test on every point.
+    ic = np.sort(rng.choice(n, params.check_samples, replace=False)) if n > params.check_samples else np.arange(n)
     tried: list[tuple[np.ndarray, float]] = []
     # The best-supported plane may be a furniture face (rejected below); try the next distinct ones.
     for best in np.argsort(-score, kind="stable"):
-        if len(tried) >= params.wall_candidates or score[best] < params.min_wall_fraction * len(ps) * n / n_total:
+        if len(tried) >= params.wall_candidates or score[best] < params.min_wall_fraction * len(ps) * n_total / n:
             break
         if any(abs(nrm[best] @ nn) > 0.995 and abs(off[best] - oo * np.sign(nrm[best] @ nn)) < 0.15 for nn, oo in tried):
             continue
         tried.append((nrm[best], off[best]))
-        wall = _check_wall(p, tol, ps, ts, nrm[best], off[best], params, n_total)
+        wall = _check_wall(p, tol, ps, ts, (p[ic], tol[ic]), nrm[best], off[best], params, n_total)
         if wall is not None:
             return wall
     return None
 
 
-def _check_wall(p, tol, ps, ts, normal, offset, params: PlaneParams, n_total: int):
-    """Refine a vertical plane hypothesis and accept it if it is a wall: ``(normal (3,), offset,
-    inlier mask)`` or None."""
+def _check_wall(p, tol, ps, ts, check, normal, offset, params: PlaneParams, n_total: int):
+    """Refine a vertical plane hypothesis on the samples ``ps`` and accept it if it is a wall,
+    first on the points ``check`` (points, tolerances), then on all of ``p``: ``(normal (3,), offset, inlier mask)`` or
+    None."""
     for _ in range(2):  # least-squares refinement on the inliers (2D line fit, normal stays horizontal)
         on = np.abs(ps[:, 0] * normal[0] + ps[:, 1] * normal[1] + offset) < ts
         if on.sum() < 3:
@@ -288,15 +293,24 @@ def _check_wall(p, tol, ps, ts, normal, offset, params: PlaneParams, n_total: in
         _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
         normal = vt[1]
         offset = -float(c @ normal)
-    on = np.abs(p[:, 0] * normal[0] + p[:, 1] * normal[1] + offset) < tol
-    on = _largest_patch(p[on, 0] * -normal[1] + p[on, 1] * normal[0], p[on, 2], on)
-    if on.sum() < params.min_wall_fraction * n_total:
+    if not _wall_extent(ps[on], normal, params):  # cheap rejection on the samples first
         return None
-    z = p[on, 2]
-    along = p[on, 0] * -normal[1] + p[on, 1] * normal[0]
-    if np.ptp(np.percentile(z, [2, 98])) < params.min_wall_height or np.ptp(np.percentile(along, [2, 98])) < params.min_wall_width:
-        return None
+    # Sparser points need fewer per cell to mark a patch.
+    for q, tq, min_points in ((*check, 1), (p, tol, 3)):
+        on = np.abs(q[:, 0] * normal[0] + q[:, 1] * normal[1] + offset) < tq
+        on = _largest_patch(q[on, 0] * -normal[1] + q[on, 1] * normal[0], q[on, 2], on, min_points=min_points)
+        if on.sum() < params.min_wall_fraction * n_total * len(q) / len(p) or not _wall_extent(q[on], normal, params):
+            return None
     return np.array([normal[0], normal[1], 0.0]), offset, on
+
+
+def _wall_extent(q: np.ndarray, normal: np.ndarray, params: PlaneParams) -> bool:
+    """Whether the points ``q`` (on a vertical plane with this normal) span a wall's height and width."""
+    if len(q) < 3:
+        return False
+    along = q[:, 0] * -normal[1] + q[:, 1] * normal[0]
+    return bool(np.ptp(np.percentile(q[:, 2], [2, 98])) >= params.min_wall_height
+                and np.ptp(np.percentile(along, [2, 98])) >= params.min_wall_width)
 
 
 def _largest_patch(along: np.ndarray, z: np.ndarray, on: np.ndarray, cell: float = 0.1, min_points: int = 3) -> np.ndarray:
@@ -309,8 +323,8 @@ def _largest_patch(along: np.ndarray, z: np.ndarray, on: np.ndarray, cell: float
         return on
     a = np.floor((along - along.min()) / cell).astype(np.int64)
     b = np.floor((z - z.min()) / cell).astype(np.int64)
-    counts = np.zeros((a.max() + 1, b.max() + 1), dtype=np.int64)
-    np.add.at(counts, (a, b), 1)
+    shape = (int(a.max()) + 1, int(b.max()) + 1)
+    counts = np.bincount(a * shape[1] + b, minlength=shape[0] * shape[1]).reshape(shape)
     occupied = ndimage.binary_closing(counts >= min_points, iterations=1) | (counts >= min_points)
     lab, n = ndimage.label(occupied, structure=np.ones((3, 3)))
     if n == 0:
