@@ -12,18 +12,24 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 from isa.categories import CATEGORIES
 from isa.experiment import ExperimentConfig, run
 from isa.forest import ForestParams
 
 
-def demo_config(seed: int = 0, categories=CATEGORIES) -> ExperimentConfig:
+#: Real SUN RGB-D frames, when the developers' shared data sits beside the checkout: the demo then
+#: adds the real-data section (it runs fully without them).
+SHARED_SUNRGBD = Path(__file__).resolve().parents[3] / "shared" / "data" / "sunrgbd"
+
+
+def demo_config(seed: int = 0, categories=CATEGORIES, real: str | None = None) -> ExperimentConfig:
     return ExperimentConfig(
         categories=tuple(categories), modelnet=None, train_instances=6, test_instances=3, views=30,
         test_images=24, qualities=("Q1", "Q1+Q2+Q3"), stride=6,
         forest=ForestParams(n_trees=4, max_depth=14, n_candidates=40, seed=seed),
-        linemod=True, linemod_instances=2, ground_truth_skeletons=False, seed=seed, samples=8)
+        linemod=True, linemod_instances=2, ground_truth_skeletons=False, real=real, seed=seed, samples=8)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -31,9 +37,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--categories", nargs="+", default=list(CATEGORIES), choices=CATEGORIES)
+    p.add_argument("--real", default=str(SHARED_SUNRGBD) if SHARED_SUNRGBD.is_dir() else None,
+                   help="SUN RGB-D folder for the real-data section (default: ../shared/data/sunrgbd if present)")
     a = p.parse_args(argv)
     t0 = time.perf_counter()
-    path = run(demo_config(a.seed, a.categories), a.out, title="isa demo: category-level 6D pose on procedural furniture")
+    path = run(demo_config(a.seed, a.categories, a.real), a.out, title="isa demo: category-level 6D pose on procedural furniture")
     print(f"demo finished in {(time.perf_counter() - t0) / 60:.1f} min; open {path}")
 
 

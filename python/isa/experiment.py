@@ -53,6 +53,7 @@ class ExperimentConfig:
     linemod: bool = True
     linemod_instances: int | None = None  # None: every training instance
     ground_truth_skeletons: bool = False  # procedural only: skip skeleton extraction
+    real: str | None = None  # SUN RGB-D folder: add the real-data detection section (Table 2 right)
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
 
@@ -106,8 +107,10 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
 
     models = {o.obj_id: o.mesh for o in test.objects}
     pts = {k: model_points(m) for k, m in models.items()}
+    from isa.detection import box_metadata, category_box
+
     meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "template": train.ssc.template.to_dict(),
-            "isa_version": __version__}
+            "isa_version": __version__, **box_metadata(category_box(train))}
     evals = {}
     res["isa"] = {}
     for q in cfg.qualities:
@@ -241,9 +244,22 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
                     "position and the test depth (see `isa.linemod`), scored by the same metric.")
     report.blocks += body.blocks[1:]
     report.results = results
+    if cfg.real:
+        _real(cfg, out, report)
     path = report.write()
     print(f"report: {path}")
     return path
+
+
+def _real(cfg: ExperimentConfig, out: Path, report: Report) -> None:
+    """Table 2 (right): the Q1+Q2+Q3 (else the last) forest of each category on real frames."""
+    from isa.detection import evaluate_real, load_real_frames, real_section
+
+    q = "Q1+Q2+Q3" if "Q1+Q2+Q3" in cfg.qualities else cfg.qualities[-1]
+    models = {c: out / "models" / f"{c}-{q.replace('+', '')}.isa" for c in cfg.categories}
+    frames = load_real_frames(cfg.real)
+    result = evaluate_real(models, frames, progress=True)
+    real_section(report, result, frames, label=f"ISA {q} (ours)")
 
 
 def _config_dict(cfg: ExperimentConfig) -> dict:
@@ -272,6 +288,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--no-linemod", action="store_true", help="skip the Linemod baseline")
     p.add_argument("--linemod-instances", type=int, help="run Linemod with only the first N training instances")
     p.add_argument("--ground-truth-skeletons", action="store_true", help="procedural: use true skeletons")
+    p.add_argument("--real", metavar="SUNRGBD", help="SUN RGB-D folder: also detect on its real frames")
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -282,7 +299,7 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         test_instances=a.test_instances, views=a.views, test_images=a.test_images, qualities=tuple(a.qualities),
         stride=a.stride, forest=ForestParams(n_trees=a.trees, max_depth=a.depth, n_candidates=a.candidates, seed=a.seed),
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
-        ground_truth_skeletons=a.ground_truth_skeletons, seed=a.seed)
+        ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:
