@@ -159,12 +159,15 @@ def _linemod(cfg, category, train, train_frames, test_frames, pts) -> dict:
     t0 = time.perf_counter()
     lm = linemod_recall(builders(), test_frames, is_correct, progress=True)
     s = lm.summary()
+    # The paper's Linemod numbers match Linemod's rotation with the true translation best; report both.
+    st = lm.rescore(lambda R, t, f: is_correct(R, f.t, f)).summary()
     secs = np.concatenate(list(lm.match_seconds.values()))
     print(f"[{category}] Linemod: min {100 * s['min']:.1f} max {100 * s['max']:.1f} all {100 * s['mean']:.1f}", flush=True)
     return {"min": 100 * s["min"], "max": 100 * s["max"], "mean": 100 * s["mean"],
             "per_instance": {k: 100 * v for k, v in lm.recall.items()}, "templates": lm.templates,
             "refused": lm.refused, "match_ms_median": 1000 * float(np.median(secs)),
-            "seconds": time.perf_counter() - t0, "images": len(test_frames)}
+            "seconds": time.perf_counter() - t0, "images": len(test_frames),
+            "true_translation": {"min": 100 * st["min"], "max": 100 * st["max"], "mean": 100 * st["mean"]}}
 
 
 def _category_figures(cfg, category, out, report, train, train_frames, test_frames, evals, pts, res) -> None:
@@ -219,6 +222,10 @@ def summary_tables(report: Report, results: dict, cfg: ExperimentConfig) -> None
         for key, name in (("min", "Linemod (min)"), ("max", "Linemod (max)"), ("mean", "Linemod (all)")):
             vals = [results["categories"][c]["linemod"][key] for c in cats]
             rows.append([name] + [f"{v:.1f} ({POSE_RECALL[name][c]:g})" for v, c in zip(vals, cats)] + [f"{np.mean(vals):.1f}"])
+        for key, name in (("min", "Linemod (min)"), ("max", "Linemod (max)"), ("mean", "Linemod (all)")):
+            vals = [results["categories"][c]["linemod"]["true_translation"][key] for c in cats]
+            rows.append([f"{name}, true t"] + [f"{v:.1f} ({POSE_RECALL[name][c]:g})" for v, c in zip(vals, cats)]
+                        + [f"{np.mean(vals):.1f}"])
     report.table(["method"] + cats + ["average"], rows)
 
 
@@ -241,7 +248,9 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
     if cfg.linemod:
         report.text("Linemod: OpenCV's depth-only `cv2.linemod`, one detector per training instance holding its "
                     "views; the pose is the best template's rotation with the translation from the matched "
-                    "position and the test depth (see `isa.linemod`), scored by the same metric.")
+                    "position and the test depth (see `isa.linemod`), scored by the same metric; the rows marked "
+                    "'true t' score Linemod's rotation with the true translation, the reading closest to the paper's "
+                    "Linemod numbers. Templates come from the same 1.5-4 m training views as ISA's.")
     report.blocks += body.blocks[1:]
     report.results = results
     if cfg.real:
