@@ -68,8 +68,12 @@ impl DepthStore {
                 pixels.len()
             )));
         }
+        // `data` always ends with one padding pixel after the last image, so a 32-bit gather
+        // at any pixel stays inside the buffer (see `splitter::bins_row`).
+        self.data.pop();
         self.index.push(ImageInfo { offset: self.data.len(), width: width as u32, height: height as u32 });
         self.data.extend_from_slice(pixels);
+        self.data.push(0);
         Ok(self.index.len() - 1)
     }
 
@@ -83,7 +87,7 @@ impl DepthStore {
 
     /// Total pixels held.
     pub fn n_pixels(&self) -> usize {
-        self.data.len()
+        self.data.len().saturating_sub(1)
     }
 
     /// `(width, height)` of image `i`.

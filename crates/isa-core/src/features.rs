@@ -71,11 +71,11 @@ impl Feature {
 /// candidates on it.
 #[derive(Clone, Copy, Debug)]
 pub struct PartGeom<'a> {
-    img: ImageRef<'a>,
-    x: i32,
-    y: i32,
+    pub(crate) img: ImageRef<'a>,
+    pub(crate) x: i32,
+    pub(crate) y: i32,
     /// 1000 / D_mm(w), or 0 for a part without depth (then every feature is 0).
-    inv: f32,
+    pub(crate) inv: f32,
 }
 
 impl<'a> PartGeom<'a> {
@@ -93,6 +93,29 @@ impl<'a> PartGeom<'a> {
             return 0.0;
         }
         probe(&self.img, self.x, self.y, f.u, self.inv) - probe(&self.img, self.x, self.y, f.v, self.inv)
+    }
+}
+
+/// Candidates in structure-of-arrays form (`u_x, u_y, v_x, v_y`), zero-padded to a multiple
+/// of 8, for the vectorised feature + binning path.
+#[derive(Clone, Debug, Default)]
+pub struct CandidateSoa {
+    pub ux: Vec<f32>,
+    pub uy: Vec<f32>,
+    pub vx: Vec<f32>,
+    pub vy: Vec<f32>,
+    pub n: usize,
+}
+
+impl CandidateSoa {
+    pub fn new(cands: &[Feature]) -> Self {
+        let n8 = cands.len().div_ceil(8) * 8;
+        let col = |f: &dyn Fn(&Feature) -> f32| {
+            let mut v: Vec<f32> = cands.iter().map(f).collect();
+            v.resize(n8, 0.0);
+            v
+        };
+        CandidateSoa { ux: col(&|c| c.u[0]), uy: col(&|c| c.u[1]), vx: col(&|c| c.v[0]), vy: col(&|c| c.v[1]), n: cands.len() }
     }
 }
 

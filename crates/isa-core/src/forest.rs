@@ -98,8 +98,9 @@ impl Forest {
                 crit: &crit,
             };
             let n_bag = ((n as f64 * params.bag_fraction).round() as usize).clamp(1, n);
+            // Trees one after the other, each using every thread (level-wise, see `tree`): the
+            // working memory is that of one tree.
             let trees: Vec<Tree> = (0..params.n_trees)
-                .into_par_iter()
                 .map(|t| {
                     let bag: Vec<u32> = if n_bag == n {
                         (0..n as u32).collect()

@@ -4,8 +4,9 @@
 //! when no candidate threshold leaves `min_samples_leaf` scored parts on each side, or when the
 //! best total gain is not above `min_gain`.
 //!
-//! Node ids are assigned breadth-first (root 0, children of a split at `child` and `child + 1`),
-//! so a node's random stream `mix(seed, tree, node id)` does not depend on scheduling.
+//! Node ids are assigned breadth-first (root 0, children of a split at `child` and `child + 1`,
+//! in node-id order within a level), so a node's random stream `mix(seed, tree, node id)` does
+//! not depend on scheduling.
 //!
 //! ## Leaf votes
 //! A leaf keeps at most `leaf_modes` weighted [`Vote`]s summarising the SSC offsets `Δx` and
@@ -24,10 +25,10 @@ use rayon::prelude::*;
 
 use crate::criterion::{Criterion, Targets};
 use crate::depth::{DepthStore, Part};
-use crate::features::{Feature, PartGeom};
+use crate::features::{CandidateSoa, Feature, PartGeom};
 use crate::params::ForestParams;
 use crate::rng::mix;
-use crate::splitter::{best_split, SplitConfig};
+use crate::splitter::{bins_row, score_bins, NodeData, Thresholds};
 
 /// A node of the flat array. Split: `f < threshold` goes to `child`, otherwise `child + 1`.
 /// Leaf: `child` is the leaf index.
@@ -131,12 +132,28 @@ pub fn draw_candidates(rng: &mut ChaCha8Rng, n: usize, max_offset: f32) -> Vec<F
         .collect()
 }
 
-fn process_node(ctx: &TrainContext<'_>, tree: usize, node_id: usize, depth: usize, idx: Vec<u32>) -> Outcome {
+/// A node of the current level that will be scored.
+struct Plan {
+    id: usize,
+    idx: Vec<u32>,
+    /// Scored parts (all of `idx`, or a sorted random subsample), global indices.
+    subset: Vec<u32>,
+    cands: Vec<Feature>,
+    soa: CandidateSoa,
+    thr: Thresholds,
+}
+
+enum Stage {
+    Done(usize, Outcome),
+    Score(Plan),
+}
+
+fn plan_node(ctx: &TrainContext<'_>, tree: usize, id: usize, depth: usize, idx: Vec<u32>) -> Stage {
     let p = ctx.params;
     if depth >= p.max_depth || idx.len() < p.min_samples_split {
-        return Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p));
+        return Stage::Done(id, Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p)));
     }
-    let node_seed = mix(&[p.seed, tree as u64, node_id as u64]);
+    let node_seed = mix(&[p.seed, tree as u64, id as u64]);
     let mut rng = ChaCha8Rng::seed_from_u64(node_seed);
     let cands = draw_candidates(&mut rng, p.n_candidates, p.max_offset);
     let subset: Vec<u32> = if idx.len() > p.max_score_samples {
@@ -146,38 +163,108 @@ fn process_node(ctx: &TrainContext<'_>, tree: usize, node_id: usize, depth: usiz
     } else {
         idx.clone()
     };
-    let store = ctx.store;
-    let parts = ctx.parts;
-    let geom: Vec<PartGeom<'_>> = subset.iter().map(|&i| PartGeom::new(store, &parts[i as usize])).collect();
-    let feat = |c: usize, j: usize| geom[j].eval(&cands[c]);
-    let cfg = SplitConfig { n_thresholds: p.n_thresholds, min_samples_leaf: p.min_samples_leaf, parallel: true };
-    let best = best_split(ctx.crit, ctx.targets, &subset, cands.len(), &feat, &cfg, node_seed);
-    drop(subset);
+    let (store, parts) = (ctx.store, ctx.parts);
+    let feat = |c: usize, j: usize| cands[c].eval(store, &parts[subset[j] as usize]);
+    let thr = Thresholds::draw(subset.len(), cands.len(), p.n_thresholds, &feat, node_seed);
+    let soa = CandidateSoa::new(&cands);
+    Stage::Score(Plan { id, idx, subset, cands, soa, thr })
+}
+
+fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outcome) {
+    let p = ctx.params;
+    let node = NodeData::gather(ctx.crit, ctx.targets, &plan.subset);
+    let best = score_bins(ctx.crit, &node, &plan.thr, bins, p.min_samples_leaf, true);
+    drop(node);
+    let Plan { id, idx, cands, .. } = plan;
+    let (store, parts) = (ctx.store, ctx.parts);
+    let leaf = |idx: &[u32]| Outcome::Leaf(leaf_modes(idx, ctx.offsets, ctx.rotations, p));
     match best {
         Some(b) if b.gain.is_finite() && b.gain > p.min_gain => {
             let f = cands[b.candidate];
             let (left, right): (Vec<u32>, Vec<u32>) =
                 idx.iter().partition(|&&i| f.eval(store, &parts[i as usize]) < b.threshold);
             if left.is_empty() || right.is_empty() {
-                return Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p));
+                return (id, leaf(&idx));
             }
-            Outcome::Split { feature: f, threshold: b.threshold, left, right }
+            (id, Outcome::Split { feature: f, threshold: b.threshold, left, right })
         }
-        _ => Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p)),
+        _ => (id, leaf(&idx)),
     }
 }
 
 /// Grows tree number `tree` on the parts `bag` (global indices, ascending).
+///
+/// Level by level: (1) every node of the level draws its candidates, scored subset and
+/// thresholds; (2) one pass over the level's scored parts **in part (= image) order** evaluates
+/// each part's node candidates into bin indices, so each depth crop is brought into cache once
+/// per level instead of once per node; (3) every node accumulates its statistics and picks its
+/// split; (4) children get breadth-first ids. Phases 1-3 run in parallel.
 pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
     let placeholder = Node { feature: Feature { u: [0.0; 2], v: [0.0; 2] }, threshold: 0.0, child: 0, is_leaf: true };
     let mut t = Tree { nodes: vec![placeholder], leaf_offsets: vec![0], votes: Vec::new() };
+    let n_all = ctx.parts.len();
+    let nc = ctx.params.n_candidates;
+    // Per-part scratch of the current level: plan slot and row in the level's bin matrix.
+    let mut slot_of = vec![u32::MAX; n_all];
+    let mut row_of = vec![0u32; n_all];
     let mut frontier: Vec<(usize, Vec<u32>)> = vec![(0, bag)];
     let mut depth = 0;
     while !frontier.is_empty() {
-        let outcomes: Vec<(usize, Outcome)> = frontier
+        let stages: Vec<Stage> = frontier.into_par_iter().map(|(id, idx)| plan_node(ctx, tree, id, depth, idx)).collect();
+        let mut outcomes: Vec<(usize, Outcome)> = Vec::new();
+        let mut plans: Vec<Plan> = Vec::new();
+        for st in stages {
+            match st {
+                Stage::Done(id, o) => outcomes.push((id, o)),
+                Stage::Score(p) => plans.push(p),
+            }
+        }
+        // (2) the level's scored parts in part order, and their bins.
+        let mut scan: Vec<u32> = Vec::new();
+        for (s, pl) in plans.iter().enumerate() {
+            for &p in &pl.subset {
+                slot_of[p as usize] = s as u32;
+            }
+        }
+        if !plans.is_empty() {
+            for (p, s) in slot_of.iter().enumerate() {
+                if *s != u32::MAX {
+                    row_of[p] = scan.len() as u32;
+                    scan.push(p as u32);
+                }
+            }
+        }
+        let mut bins = vec![0u8; scan.len() * nc];
+        {
+            let (store, parts, slot_of, plans) = (ctx.store, ctx.parts, &slot_of, &plans);
+            const ROWS: usize = 512;
+            bins.par_chunks_mut(ROWS * nc).zip(scan.par_chunks(ROWS)).for_each(|(out, ps)| {
+                for (row, &p) in out.chunks_exact_mut(nc).zip(ps) {
+                    let pl = &plans[slot_of[p as usize] as usize];
+                    let g = PartGeom::new(store, &parts[p as usize]);
+                    bins_row(&pl.thr, &pl.soa, &pl.cands, &g, row);
+                }
+            });
+        }
+        for &p in &scan {
+            slot_of[p as usize] = u32::MAX;
+        }
+        // (3) score every node on its rows.
+        let (bins, row_of) = (&bins, &row_of);
+        let scored: Vec<(usize, Outcome)> = plans
             .into_par_iter()
-            .map(|(id, idx)| (id, process_node(ctx, tree, id, depth, idx)))
+            .map(|pl| {
+                let mut local = vec![0u8; pl.subset.len() * nc];
+                for (dst, &p) in local.chunks_exact_mut(nc).zip(&pl.subset) {
+                    let r = row_of[p as usize] as usize;
+                    dst.copy_from_slice(&bins[r * nc..(r + 1) * nc]);
+                }
+                finish_node(ctx, pl, &local)
+            })
             .collect();
+        outcomes.extend(scored);
+        outcomes.sort_by_key(|o| o.0);
+        // (4) assemble in node-id order (breadth-first ids).
         let mut next = Vec::new();
         for (id, out) in outcomes {
             match out {

@@ -1,0 +1,310 @@
+"""Split search and training throughput: the Rust core vs a careful NumPy reference vs
+scikit-learn's ExtraTreesRegressor, on the same features and targets, in one run.
+
+Default run (about a minute): one node holding N parts (default 100k), C = 100 candidate
+features with 16 thresholds each, targets = SSC offsets (3), rotations (4), 18 link angles and
+11 nodes (33 node offsets), i.e. the 76-dimensional regression target of the paper's chair
+forest. It times
+
+* ``rust``: ``isa._core.split_search`` (the forest's own split search), for Q1 and for
+  Q1+Q2+Q3 with the full 36 + 33 privileged dimensions and with ``reduce_dims`` components;
+* ``numpy``: the same search written carefully in NumPy (per-part statistics precomputed once,
+  bins by ``searchsorted``, per-bin sums of a batch of candidates with one BLAS product, prefix
+  sums over the 17 bins, batched ``slogdet``); its thresholds come from another random stream,
+  so its best gain is close to, not equal to, Rust's;
+* ``sklearn``: ``ExtraTreesRegressor(n_estimators=1, max_depth=1, max_features=C)`` fitting
+  the same features and the 76-dim (or 7-dim) targets: one root split search (ExtraTrees draws
+  one threshold per feature, with a cheap MSE criterion).
+
+Throughput is part x candidate evaluations per second of wall time; ratios are Rust / other.
+
+``--paper-scale`` trains the full forest instead: 10 trees, depth 20, 100 candidates per node,
+Q1+Q2+Q3, on ~1M parts of ~2,500 synthetic depth crops, reporting wall time and peak memory
+(of a fresh subprocess), then fits ExtraTreesRegressor(n_estimators=10, max_depth=20,
+max_features=100) on the same parts with 100 precomputed features and the 76-dim targets
+(``--skip-sklearn`` to leave that out: it takes several minutes).
+
+Usage::
+
+    python benches/bench_train.py [--parts 100000] [--candidates 100] [--reduce-dims 8]
+    python benches/bench_train.py --paper-scale [--parts 1000000] [--skip-sklearn]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from isa import _core
+
+N_LINKS, N_NODES, K = 18, 11, 16
+
+
+# ------------------------------------------------------------------ synthetic data ----------
+def synthetic_crops(n_images: int, rng: np.random.Generator, f: float = 525.0):
+    """Foreground-only depth crops of box-assembly "objects" (uint16 mm) with per-image views,
+    and per-part targets following the data contract (offsets to an object centre, the view's
+    rotation, link angles of a random skeleton projection, node offsets)."""
+    images, meta = [], []
+    for _ in range(n_images):
+        h, w = rng.integers(70, 110, 2)
+        img = np.zeros((h, w), np.uint16)
+        base = rng.uniform(1500, 3000)
+        for _ in range(rng.integers(3, 7)):
+            y0, x0 = rng.integers(0, h - 10), rng.integers(0, w - 10)
+            y1, x1 = y0 + rng.integers(8, h // 2 + 10), x0 + rng.integers(8, w // 2 + 10)
+            yy, xx = np.mgrid[y0:min(y1, h), x0:min(x1, w)]
+            d = base + rng.uniform(-200, 200) + rng.uniform(-3, 3) * (yy - y0) + rng.uniform(-3, 3) * (xx - x0)
+            cur = img[y0:y1, x0:x1]
+            img[y0:y1, x0:x1] = np.where((cur == 0) | (d < cur), d, cur).astype(np.uint16)
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        nodes = np.stack([rng.uniform(0, w, N_NODES), rng.uniform(0, h, N_NODES), base / 1000 + rng.uniform(-0.3, 0.3, N_NODES)], 1)
+        links = rng.uniform(-np.pi, np.pi, N_LINKS)
+        images.append(img)
+        meta.append((q, nodes, links, (w / 2, h / 2, base / 1000 + 0.2)))
+    return images, meta
+
+
+def make_parts(n_parts: int, rng: np.random.Generator, per_image: int = 400):
+    """Crops until ``n_parts`` foreground parts (stride 2, at most ``per_image`` per crop)."""
+    images, meta, chunks, total = [], [], [], 0
+    while total < n_parts:
+        im, me = synthetic_crops(64, rng)
+        p = _core.sample_parts(im, stride=2, max_per_image=per_image, seed=len(images))
+        p[:, 0] += len(images)
+        images += im
+        meta += me
+        chunks.append(p)
+        total += len(p)
+    parts = np.concatenate(chunks)[:n_parts]
+    keep = int(parts[-1, 0]) + 1
+    return images[:keep], meta[:keep], np.ascontiguousarray(parts)
+
+
+def targets_for(parts: np.ndarray, images, meta):
+    n = len(parts)
+    off = np.empty((n, 3), np.float32)
+    rot = np.empty((n, 4), np.float32)
+    la = np.empty((n, N_LINKS), np.float32)
+    no = np.empty((n, 3 * N_NODES), np.float32)
+    for i, (q, nodes, links, c) in enumerate(meta):
+        sel = parts[:, 0] == i
+        p = parts[sel]
+        z = images[i][p[:, 2], p[:, 1]].astype(np.float64) / 1000
+        off[sel] = np.stack([(c[0] - p[:, 1]) * z / 525, (c[1] - p[:, 2]) * z / 525, c[2] - z], 1)
+        rot[sel] = q
+        la[sel] = links
+        d = np.stack([nodes[None, :, 0] - p[:, 1:2], nodes[None, :, 1] - p[:, 2:3], nodes[None, :, 2] - z[:, None]], 2)
+        no[sel] = d.reshape(len(p), -1)
+    return off, rot, la, no
+
+
+def sklearn_targets(off, rot, la, no):
+    """The 76-dim regression target: offsets 3, quaternion 4, (cos, sin) of 18 links, 33 node offsets."""
+    return np.concatenate([off, rot, np.cos(la), np.sin(la), no], 1).astype(np.float32)
+
+
+def random_features(rng, n_cand, max_offset=150.0):
+    return (rng.uniform(-max_offset, max_offset, (n_cand, 2)).astype(np.float32),
+            rng.uniform(-max_offset, max_offset, (n_cand, 2)).astype(np.float32))
+
+
+# ------------------------------------------------------------------ NumPy reference ---------
+def block_dims(dims):
+    return list(dims)
+
+
+def numpy_split_search(features, targets, dims, reg=1e-4, seed=0, batch=8, dtype=np.float32):
+    """Best (gain, candidate, threshold) over all candidates x 16 thresholds.
+
+    ``targets`` are the criterion's target vectors (``_core.criterion_targets``), ``dims`` the
+    block sizes [3, 6, (links), (nodes)]; Q1 = logaddexp of the first two blocks' log-dets.
+    Per-part statistics ``z = [1, x, upper(x x^T) per block]`` are precomputed once; per batch of
+    candidates one BLAS product ``onehot(bins) @ z`` gives the per-bin sums (in ``dtype``:
+    float32 doubles BLAS speed, in NumPy's favour), prefix sums over bins give every left child,
+    and all thresholds of the batch go through one batched ``slogdet`` per block.
+    """
+    n, c = features.shape
+    x = targets.astype(np.float64)
+    x = x - x.mean(0)
+    starts = np.cumsum([0] + dims[:-1])
+    cols = [np.ones((n, 1)), x]
+    tri_idx = []
+    for s, d in zip(starts, dims):
+        iu = np.triu_indices(d)
+        xb = x[:, s:s + d]
+        cols.append(xb[:, iu[0]] * xb[:, iu[1]])
+        tri_idx.append(iu)
+    z = np.concatenate(cols, 1)
+    zt = z.astype(dtype)
+    dim = x.shape[1]
+    rng = np.random.default_rng(seed)
+
+    def entropies(stats):  # (T, m) -> (T,) summed entropies
+        cnt = stats[:, 0]
+        mean = stats[:, 1:1 + dim] / cnt[:, None]
+        off = 1 + dim
+        lds = []
+        for s, d, iu in zip(starts, dims, tri_idx):
+            k = len(iu[0])
+            s2 = np.empty((len(stats), d, d))
+            s2[:, iu[0], iu[1]] = stats[:, off:off + k] / cnt[:, None]
+            s2[:, iu[1], iu[0]] = s2[:, iu[0], iu[1]]
+            off += k
+            mb = mean[:, s:s + d]
+            lds.append(np.linalg.slogdet(s2 - mb[:, :, None] * mb[:, None, :] + reg * np.eye(d))[1])
+        return np.logaddexp(lds[0], lds[1]) + sum(lds[2:])
+
+    parent = z.sum(0)
+    hp = entropies(parent[None])[0]
+    best = (-np.inf, -1, 0.0)
+    bins_range = np.arange(K + 1)[:, None]
+    for c0 in range(0, c, batch):
+        cs = np.arange(c0, min(c0 + batch, c))
+        thr = np.sort(features[rng.integers(0, n, (len(cs), K)), cs[:, None]], axis=1)  # (B, K)
+        onehot = np.empty((len(cs) * (K + 1), n), dtype)
+        for j, ci in enumerate(cs):
+            bins = np.searchsorted(thr[j], features[:, ci], side="right")
+            onehot[j * (K + 1):(j + 1) * (K + 1)] = bins[None, :] == bins_range
+        per_bin = (onehot @ zt).astype(np.float64).reshape(len(cs), K + 1, -1)
+        left = np.cumsum(per_bin, 1)[:, :K].reshape(len(cs) * K, -1)
+        right = parent[None] - left
+        ok = (left[:, 0] >= 1) & (right[:, 0] >= 1)
+        if not ok.any():
+            continue
+        g = np.full(len(left), -np.inf)
+        g[ok] = hp - left[ok, 0] / n * entropies(left[ok]) - right[ok, 0] / n * entropies(right[ok])
+        k = int(np.argmax(g))
+        if g[k] > best[0]:
+            best = (float(g[k]), int(cs[k // K]), float(thr[k // K, k % K]))
+    return best
+
+
+# ------------------------------------------------------------------ runs -------------------
+def timed(fn, *a, **kw):
+    t0 = time.perf_counter()
+    out = fn(*a, **kw)
+    return time.perf_counter() - t0, out
+
+
+def bench_split(args):
+    rng = np.random.default_rng(args.seed)
+    images, meta, parts = make_parts(args.parts, rng)
+    off, rot, la, no = targets_for(parts, images, meta)
+    u, v = random_features(rng, args.candidates)
+    feats = _core.depth_features(images, parts, u, v)
+    n, c = feats.shape
+    evals = n * c
+    print(f"split search: {n} parts x {c} candidates x {K} thresholds, {os.cpu_count()} cores\n")
+    rows = []
+    configs = [("Q1", None, None, 0), ("Q1+Q2+Q3 full", la, no, 0), (f"Q1+Q2+Q3 reduce_dims={args.reduce_dims}", la, no, args.reduce_dims)]
+    for name, a, s, rd in configs:
+        q = "Q1" if a is None else "Q1+Q2+Q3"
+        r = _core.split_search(feats, off, rot, a, s, quality=q, n_thresholds=K, reduce_dims=rd, seed=1)
+        t_rust = r["seconds"]
+        tg, dims = _core.criterion_targets(off, rot, a, s, reduce_dims=rd)
+        t_np, (g_np, c_np, _) = timed(numpy_split_search, feats, tg, dims, seed=1)
+        rows.append((name, "rust", t_rust, evals / t_rust, r["gain"]))
+        rows.append((name, "numpy", t_np, evals / t_np, g_np))
+    from sklearn.ensemble import ExtraTreesRegressor
+
+    for name, y in [("sklearn 76-dim", sklearn_targets(off, rot, la, no)), ("sklearn 7-dim", np.concatenate([off, rot], 1))]:
+        et = ExtraTreesRegressor(n_estimators=1, max_depth=1, max_features=c, bootstrap=False, random_state=0, n_jobs=-1)
+        t_sk, _ = timed(et.fit, feats, y)
+        rows.append((name, "sklearn", t_sk, evals / t_sk, float("nan")))
+    print(f"{'search':34s} {'impl':8s} {'seconds':>9s} {'M evals/s':>10s} {'best gain':>10s}")
+    for name, impl, t, rate, g in rows:
+        print(f"{name:34s} {impl:8s} {t:9.3f} {rate / 1e6:10.2f} {g:10.4f}")
+    print("\nratios (Rust throughput / other):")
+    rust = {r[0]: r[3] for r in rows if r[1] == "rust"}
+    for name, impl, _, rate, _ in rows:
+        if impl == "numpy":
+            print(f"  {name:34s} rust / numpy   = {rust[name] / rate:6.1f}x")
+    full = rust["Q1+Q2+Q3 full"]
+    red = rust[f"Q1+Q2+Q3 reduce_dims={args.reduce_dims}"]
+    np_full = next(r[3] for r in rows if r[0] == "Q1+Q2+Q3 full" and r[1] == "numpy")
+    print(f"  Q1+Q2+Q3 reduce_dims={args.reduce_dims} (rust) / full (numpy) = {red / np_full:6.1f}x")
+    for name, impl, _, rate, _ in rows:
+        if impl == "sklearn":
+            print(f"  Q1+Q2+Q3 full (rust) / {name:15s} = {full / rate:6.2f}x;  reduced / {name}: {red / rate:6.2f}x")
+
+
+TRAIN_CHILD = r"""
+import json, resource, sys, time
+import numpy as np
+from isa import _core
+d = np.load(sys.argv[1], allow_pickle=True)
+images = list(d["images"])
+f = _core.Forest(**json.loads(sys.argv[2]))
+t0 = time.perf_counter()
+f.fit(images, d["parts"], d["off"], d["rot"], d["la"], d["no"], "{}")
+t = time.perf_counter() - t0
+print(json.dumps({"seconds": t, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "nodes": sum(f.n_nodes), "depths": f.depths}))
+"""
+
+
+def bench_paper_scale(args):
+    import tempfile
+
+    rng = np.random.default_rng(args.seed)
+    t0 = time.perf_counter()
+    images, meta, parts = make_parts(args.parts, rng)
+    n_img = len(images)
+    off, rot, la, no = targets_for(parts, images, meta)
+    print(f"paper scale: {len(parts)} parts from {n_img} crops ({sum(i.size for i in images) * 2 / 1e6:.0f} MB of depth), "
+          f"data in {time.perf_counter() - t0:.0f} s")
+    params = dict(n_trees=10, max_depth=20, n_candidates=100, quality="Q1+Q2+Q3", reduce_dims=args.reduce_dims, seed=0)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "data.npz")
+        arr = np.empty(len(images), object)
+        arr[:] = images
+        np.savez(path, images=arr, parts=parts, off=off, rot=rot, la=la, no=no)
+        out = subprocess.run([sys.executable, "-c", TRAIN_CHILD, path, json.dumps(params)], check=True,
+                             capture_output=True, text=True)
+        res = json.loads(out.stdout.strip().splitlines()[-1])
+    print(f"rust forest {params}:\n  {res['seconds']:.1f} s wall, peak RSS {res['peak_rss_mb']:.0f} MB "
+          f"(child process incl. its copy of the data), {res['nodes']} nodes, depths {res['depths']}")
+    if args.skip_sklearn:
+        return
+    from sklearn.ensemble import ExtraTreesRegressor
+
+    u, v = random_features(rng, 100)
+    feats = _core.depth_features(images, parts, u, v)
+    y = sklearn_targets(off, rot, la, no)
+    et = ExtraTreesRegressor(n_estimators=10, max_depth=20, max_features=100, n_jobs=-1, random_state=0)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    t_sk, _ = timed(et.fit, feats, y)
+    after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"sklearn ExtraTreesRegressor(10 trees, depth 20, 100 features, 76-dim y): {t_sk:.1f} s wall, "
+          f"peak RSS {after:.0f} MB (was {before:.0f} MB before fitting)")
+    print(f"ratio sklearn / rust time: {t_sk / res['seconds']:.2f}x")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--parts", type=int, default=None, help="parts (default 100k; 1M with --paper-scale)")
+    ap.add_argument("--candidates", type=int, default=100)
+    ap.add_argument("--reduce-dims", type=int, default=8)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--paper-scale", action="store_true")
+    ap.add_argument("--skip-sklearn", action="store_true")
+    args = ap.parse_args()
+    if args.paper_scale:
+        args.parts = args.parts or 1_000_000
+        bench_paper_scale(args)
+    else:
+        args.parts = args.parts or 100_000
+        bench_split(args)
+
+
+if __name__ == "__main__":
+    main()
