@@ -59,8 +59,9 @@ pub struct SplitResult {
 
 /// Sufficient statistics of a node's scored parts.
 pub struct NodeData {
-    /// `n × m` per-part statistics of the centred targets.
-    pub z: Vec<f64>,
+    /// `n × m` per-part statistics of the centred targets (f32: summed in f32 within blocks
+    /// of [`F32_BLOCK`] parts, then in f64).
+    pub z: Vec<f32>,
     pub parent: Vec<f64>,
     pub h_parent: TermValues,
     pub n: usize,
@@ -79,16 +80,18 @@ impl NodeData {
         for mu in &mut mean {
             *mu /= n.max(1) as f64;
         }
-        let mut z = vec![0f64; n * m];
+        let mut z = vec![0f32; n * m];
         let mut x = vec![0f64; d];
+        let mut zr64 = vec![0f64; m];
         let mut parent = vec![0f64; m];
         for (zr, &p) in z.chunks_exact_mut(m).zip(subset) {
             for ((o, &v), mu) in x.iter_mut().zip(targets.row(p as usize)).zip(&mean) {
                 *o = v as f64 - mu;
             }
-            lay.accumulate(zr, &x);
-            for (a, b) in parent.iter_mut().zip(zr.iter()) {
+            lay.statistics_of(&mut zr64, &x);
+            for ((a, o), b) in parent.iter_mut().zip(zr.iter_mut()).zip(&zr64) {
                 *a += b;
+                *o = *b as f32;
             }
         }
         let mut scratch = Vec::new();
@@ -114,27 +117,46 @@ fn bin16(thr: &[f32; 16], f: f32) -> u8 {
     b
 }
 
+/// Parts per f32 partial sum: the split search adds part statistics in f32 within blocks of
+/// this many parts and flushes the block sums into f64 (relative error ~1e-6 of a block sum,
+/// far below the ridge; the f64 criterion hook is the reference).
+pub const F32_BLOCK: usize = 128;
+
 /// `acc[bin] += z_row` over the candidates `c0..c0 + accs.len()`, tiled by blocks of parts so
-/// a block of `z` rows is reused from L1/L2 by every candidate of the group (`bins` is
-/// part-major with `nc` candidates per part). Summation order per element is the part order
-/// whatever the SIMD width, so results are bit-identical on every CPU path.
+/// a block of `z` rows is reused from cache by every candidate of the group (`bins` is
+/// part-major with `nc` candidates per part). Summation order per element is fixed (parts in
+/// order within a block, blocks in order) whatever the SIMD width or thread count, so results
+/// are bit-identical on every CPU path.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn accumulate_group_body(z: &[f64], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
-    // Keep a block of z rows around 8 KiB.
-    let block = (1024 / m.max(1)).clamp(4, 256);
+fn accumulate_group_body(z: &[f32], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
+    let nb = accs.iter().map(|a| a.len() / m.max(1)).max().unwrap_or(0);
+    let mut part = vec![0f32; nb * m];
+    let mut touched = vec![false; nb];
     let mut j0 = 0;
     while j0 < n {
-        let j1 = (j0 + block).min(n);
+        let j1 = (j0 + F32_BLOCK).min(n);
         for (gi, (acc, cnt)) in accs.iter_mut().zip(cnts.iter_mut()).enumerate() {
             let c = c0 + gi;
+            let nbc = acc.len() / m.max(1);
             for j in j0..j1 {
                 let bin = bins[j * nc + c] as usize;
                 cnt[bin] += 1;
+                touched[bin] = true;
                 let zr = &z[j * m..(j + 1) * m];
-                let ar = &mut acc[bin * m..(bin + 1) * m];
-                for (a, v) in ar.iter_mut().zip(zr) {
+                let pr = &mut part[bin * m..(bin + 1) * m];
+                for (a, v) in pr.iter_mut().zip(zr) {
                     *a += v;
+                }
+            }
+            for b in 0..nbc {
+                if touched[b] {
+                    touched[b] = false;
+                    let pr = &mut part[b * m..(b + 1) * m];
+                    for (a, v) in acc[b * m..(b + 1) * m].iter_mut().zip(pr.iter_mut()) {
+                        *a += *v as f64;
+                        *v = 0.0;
+                    }
                 }
             }
         }
@@ -145,12 +167,12 @@ fn accumulate_group_body(z: &[f64], m: usize, n: usize, bins: &[u8], nc: usize, 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn accumulate_group_avx2(z: &[f64], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
+unsafe fn accumulate_group_avx2(z: &[f32], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
     accumulate_group_body(z, m, n, bins, nc, c0, accs, cnts)
 }
 
 #[allow(clippy::too_many_arguments)]
-fn accumulate_group(z: &[f64], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
+fn accumulate_group(z: &[f32], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx2") {
@@ -436,7 +458,7 @@ mod tests {
             let b = best_split(&crit, &t, &subset, 5, &f, &cfg, 9).unwrap();
             let mask: Vec<bool> = (0..n).map(|p| feats[p * 5 + b.candidate] < b.threshold).collect();
             let g = term_gains(&raw, &mask, 1e-4, 0).unwrap();
-            assert!((g[0] + g[1] - b.gain).abs() < 1e-6 * b.gain.abs().max(1.0), "{g:?} vs {b:?}");
+            assert!((g[0] + g[1] - b.gain).abs() < 1e-4 * b.gain.abs().max(1.0), "{g:?} vs {b:?}");
             assert_eq!(mask.iter().filter(|&&x| x).count(), b.n_left);
             assert!(b.candidate != 0, "candidate 0 carries no information");
         }
