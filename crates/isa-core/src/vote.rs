@@ -10,11 +10,16 @@
 //! Kernel density of the votes, a product of a biweight kernel in position (radius
 //! [`VoteParams::position_bandwidth`] `h`) and a biweight kernel on SO(3) (geodesic radius
 //! [`VoteParams::rotation_bandwidth`]), and its modes:
-//! 1. **Grid**: votes are hashed into cubic cells of side `h`; each cell keeps its weight and
-//!    weighted centroid, and the votes are reordered so those of one cell are contiguous.
-//! 2. **Position mean-shift**: the [`VoteParams::max_seeds`] heaviest cells seed a mean-shift on
-//!    cell centroids (27 neighbour cells cover the kernel), then a refinement on the raw votes
-//!    until the shift is below `1e-4 h`. Seeds run in parallel (rayon), results in seed order.
+//! 1. **Coarse grid**: an even-stride subsample of at most [`VoteParams::coarse_votes`] votes is
+//!    hashed into cubic cells of side `2h`, each keeping its weight and weighted centroid.
+//! 2. **Position mean-shift**, coarse to fine: the [`VoteParams::max_seeds`] heaviest cells seed a
+//!    mean-shift on cell centroids with a kernel of radius `2h` (27 neighbour cells cover it; the
+//!    wider kernel has fewer spurious modes); seeds reaching the same coarse mode count once,
+//!    and the [`VoteParams::refine_modes`] densest coarse modes are refined, densest first, on the
+//!    raw votes within `3h` (one gathering pass over all votes; iterations on at most
+//!    [`VoteParams::refine_votes`] of them) with the kernel of radius `h`, until the shift is
+//!    below `1e-3 h`; a coarse mode within `2h` of a refined mode is not refined again.
+//!    Densities and supports are computed over all votes. Seeds and rotations run in parallel.
 //! 3. **Non-maximum suppression** on position, by position density, with radius
 //!    `max(nms_radius, h / 4)`.
 //! 4. **Rotation mode** among the votes within `h` of each position mode, each weighted by its
@@ -71,12 +76,20 @@ pub struct VoteParams {
     pub max_iterations: usize,
     /// Rotation modes per position mode (more than 1 for symmetric objects). Default 1.
     pub rotations_per_position: usize,
-    /// Candidate starts for the rotation mode (a strided subsample of the support). Default 128.
+    /// Candidate starts for the rotation mode (a strided subsample of the support). Default 64.
     pub rotation_candidates: usize,
-    /// Votes the candidates' densities are evaluated on (strided subsample). Default 2048.
+    /// Votes the candidates' densities are evaluated on (strided subsample). Default 1024.
     pub rotation_eval_votes: usize,
     /// Hypotheses supported by fewer votes (in both kernels) are dropped. Default 3.
     pub min_support: usize,
+    /// The coarse grid is built from at most this many votes (an even-stride subsample).
+    /// Default 32768.
+    pub coarse_votes: usize,
+    /// How many of the densest distinct coarse modes are refined on the raw votes. Default 16.
+    pub refine_modes: usize,
+    /// Mean-shift iterations (position and rotation) run on at most this many of a mode's votes
+    /// (an even-stride subsample); densities and supports always use all of them. Default 4096.
+    pub refine_votes: usize,
 }
 
 impl Default for VoteParams {
@@ -89,9 +102,12 @@ impl Default for VoteParams {
             max_seeds: 64,
             max_iterations: 50,
             rotations_per_position: 1,
-            rotation_candidates: 128,
-            rotation_eval_votes: 2048,
+            rotation_candidates: 64,
+            rotation_eval_votes: 1024,
             min_support: 3,
+            coarse_votes: 32768,
+            refine_modes: 16,
+            refine_votes: 4096,
         }
     }
 }
@@ -121,6 +137,9 @@ impl VoteParams {
             ("rotations_per_position", self.rotations_per_position),
             ("rotation_candidates", self.rotation_candidates),
             ("rotation_eval_votes", self.rotation_eval_votes),
+            ("coarse_votes", self.coarse_votes),
+            ("refine_modes", self.refine_modes),
+            ("refine_votes", self.refine_votes),
         ] {
             if v == 0 {
                 return bad(name, "must be >= 1, got 0".into());
@@ -245,9 +264,9 @@ fn canonical(q: [f64; 4]) -> [f64; 4] {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The grid.
+// The coarse grid.
 
-/// FxHash-style hasher for packed cell keys (fast, fixed, so iteration order is reproducible).
+/// Hasher for packed cell keys (fast, fixed, so iteration order is reproducible).
 #[derive(Default)]
 struct CellHasher(u64);
 
@@ -262,7 +281,11 @@ impl Hasher for CellHasher {
     }
     #[inline]
     fn write_u64(&mut self, x: u64) {
-        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x517c_c1b7_2722_0a95);
+        // splitmix64 finaliser: every key bit reaches the low (bucket) and high (tag) bits.
+        let mut z = self.0 ^ x;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        self.0 = z ^ (z >> 31);
     }
 }
 
@@ -291,87 +314,37 @@ fn pack(c: [i64; 3]) -> u64 {
 struct Cell {
     weight: f64,
     centroid: [f64; 3],
-    start: u32,
-    end: u32,
 }
 
-/// Votes after validation, reordered cell by cell, plus the grid.
+/// Cubic cells of side `h` over a strided subsample of the votes: weight and weighted centroid.
 struct Grid {
-    pos: Vec<[f64; 3]>,
-    quat: Vec<[f64; 4]>,
-    weight: Vec<f64>,
     cells: Vec<Cell>,
     map: CellMap,
     inv_cell: f64,
 }
 
 impl Grid {
-    fn build(votes: &[PoseVote], cell: f64) -> Result<Grid> {
-        // Validate in parallel (first bad index reported deterministically).
-        if let Some((i, why)) = votes
-            .par_iter()
-            .enumerate()
-            .filter_map(|(i, v)| vote_problem(v).map(|w| (i, w)))
-            .min_by_key(|(i, _)| *i)
-        {
-            return Err(IsaError::InvalidInput(format!("votes[{i}]: {why}")));
-        }
+    /// Cells of the votes `0, stride, 2 stride, ...` (weight > 0), in order of first appearance.
+    fn build(votes: &[PoseVote], stride: usize, cell: f64) -> Grid {
         let inv_cell = 1.0 / cell;
-        let keys: Vec<u64> = votes
-            .par_iter()
-            .map(|v| {
-                if v.weight > 0.0 {
-                    pack(cell_index(v.position.map(f64::from), inv_cell))
-                } else {
-                    u64::MAX
-                }
-            })
-            .collect();
-        // Assign cells in order of first appearance (deterministic), count votes per cell.
-        let mut map = CellMap::default();
-        let mut cell_of = vec![u32::MAX; votes.len()];
-        let mut counts: Vec<u32> = Vec::new();
-        for (i, &k) in keys.iter().enumerate() {
-            if k == u64::MAX {
+        let n = votes.len().div_ceil(stride.max(1));
+        let mut map = CellMap::with_capacity_and_hasher(n.min(1 << 16), Default::default());
+        let mut cells: Vec<Cell> = Vec::new();
+        for v in votes.iter().step_by(stride.max(1)) {
+            if v.weight <= 0.0 {
                 continue;
             }
-            let next = counts.len() as u32;
-            let c = *map.entry(k).or_insert(next);
+            let p = v.position.map(f64::from);
+            let next = cells.len() as u32;
+            let c = *map.entry(pack(cell_index(p, inv_cell))).or_insert(next);
             if c == next {
-                counts.push(0);
-            }
-            counts[c as usize] += 1;
-            cell_of[i] = c;
-        }
-        // Counting sort: the votes of each cell become contiguous.
-        let mut cells: Vec<Cell> = Vec::with_capacity(counts.len());
-        let mut offset = 0u32;
-        for &n in &counts {
-            cells.push(Cell {
-                weight: 0.0,
-                centroid: [0.0; 3],
-                start: offset,
-                end: offset,
-            });
-            offset += n;
-        }
-        let n = offset as usize;
-        let mut pos = vec![[0.0f64; 3]; n];
-        let mut quat = vec![[0.0f64; 4]; n];
-        let mut weight = vec![0.0f64; n];
-        for (i, v) in votes.iter().enumerate() {
-            let c = cell_of[i];
-            if c == u32::MAX {
-                continue;
+                cells.push(Cell {
+                    weight: 0.0,
+                    centroid: [0.0; 3],
+                });
             }
             let cell = &mut cells[c as usize];
-            let j = cell.end as usize;
-            cell.end += 1;
-            let p = v.position.map(f64::from);
             let w = f64::from(v.weight);
-            pos[j] = p;
-            quat[j] = normalise4(v.rotation.map(f64::from));
-            weight[j] = w;
             cell.weight += w;
             for k in 0..3 {
                 cell.centroid[k] += w * p[k];
@@ -382,14 +355,7 @@ impl Grid {
                 cell.centroid[k] /= cell.weight;
             }
         }
-        Ok(Grid {
-            pos,
-            quat,
-            weight,
-            cells,
-            map,
-            inv_cell,
-        })
+        Grid { cells, map, inv_cell }
     }
 
     /// Calls `f` with every cell in the 3x3x3 block around `p`'s cell.
@@ -423,10 +389,43 @@ fn vote_problem(v: &PoseVote) -> Option<String> {
     None
 }
 
+/// Cheap test equivalent to `vote_problem(v).is_none()` (up to the zero-quaternion threshold).
+#[inline]
+fn vote_ok(v: &PoseVote) -> bool {
+    let p = v.position;
+    let q = v.rotation;
+    let finite = p[0].is_finite() && p[1].is_finite() && p[2].is_finite() && v.weight.is_finite();
+    let qmax = q[0].abs().max(q[1].abs()).max(q[2].abs()).max(q[3].abs());
+    finite && v.weight >= 0.0 && qmax.is_finite() && qmax > 1e-6
+}
+
+/// The first bad vote, checked in parallel over fixed chunks (deterministic answer).
+fn validate_votes(votes: &[PoseVote]) -> Result<()> {
+    const CH: usize = 1 << 15;
+    let bad = votes
+        .par_chunks(CH)
+        .enumerate()
+        .filter_map(|(c, chunk)| chunk.iter().position(|v| !vote_ok(v)).map(|i| c * CH + i))
+        .min();
+    match bad {
+        Some(i) => Err(IsaError::InvalidInput(format!(
+            "votes[{i}]: {}",
+            vote_problem(&votes[i]).unwrap_or_else(|| "rotation is not a finite non-zero quaternion".into())
+        ))),
+        None => Ok(()),
+    }
+}
+
 #[inline]
 fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
     let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
     d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+}
+
+/// `n` indices `0 .. len` evenly strided (all of them when `len <= n`).
+fn strided(len: usize, n: usize) -> impl Iterator<Item = usize> {
+    let m = n.min(len);
+    (0..m).map(move |j| j * len / m)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -436,49 +435,29 @@ struct PositionMode {
     position: [f64; 3],
     score: f64,
     support: usize,
+    /// Indices (into the votes) inside the position kernel, and their weight times kernel.
+    members: Vec<u32>,
+    member_weights: Vec<f64>,
 }
 
-/// Mean-shift from `start`: first on cell centroids, then on raw votes. `None` if the kernel
-/// around the start is empty.
-fn position_mean_shift(grid: &Grid, start: [f64; 3], h: f64, max_iter: usize) -> Option<PositionMode> {
+/// Coarse mean-shift from `start` on cell centroids weighted by cell weight (27 cells per
+/// step); returns the mode and the coarse density there. `None` if no centroid is within `h`.
+fn coarse_mean_shift(grid: &Grid, start: [f64; 3], h: f64, max_iter: usize) -> Option<([f64; 3], f64)> {
     let h2 = h * h;
     let mut m = start;
-    // Coarse: cell centroids weighted by cell weight.
+    let mut density = 0.0;
     for _ in 0..max_iter {
         let (mut acc, mut ws) = ([0.0f64; 3], 0.0f64);
+        density = 0.0;
         grid.for_neighbour_cells(m, |c| {
             let d2 = dist2(c.centroid, m);
             if d2 < h2 {
-                let g = c.weight * (1.0 - d2 / h2);
+                let u = 1.0 - d2 / h2;
+                let g = c.weight * u;
                 ws += g;
+                density += g * u;
                 for k in 0..3 {
                     acc[k] += g * c.centroid[k];
-                }
-            }
-        });
-        if ws <= 0.0 {
-            break;
-        }
-        let next = acc.map(|a| a / ws);
-        let shift2 = dist2(next, m);
-        m = next;
-        if shift2 < 1e-6 * h2 {
-            break;
-        }
-    }
-    // Fine: raw votes.
-    for _ in 0..max_iter {
-        let (mut acc, mut ws) = ([0.0f64; 3], 0.0f64);
-        grid.for_neighbour_cells(m, |c| {
-            for j in c.start as usize..c.end as usize {
-                let p = grid.pos[j];
-                let d2 = dist2(p, m);
-                if d2 < h2 {
-                    let g = grid.weight[j] * (1.0 - d2 / h2);
-                    ws += g;
-                    for k in 0..3 {
-                        acc[k] += g * p[k];
-                    }
                 }
             }
         });
@@ -488,25 +467,119 @@ fn position_mean_shift(grid: &Grid, start: [f64; 3], h: f64, max_iter: usize) ->
         let next = acc.map(|a| a / ws);
         let shift2 = dist2(next, m);
         m = next;
-        if shift2 < 1e-8 * h2 {
+        if shift2 < 1e-6 * h2 {
             break;
         }
     }
-    let (mut score, mut support) = (0.0f64, 0usize);
-    grid.for_neighbour_cells(m, |c| {
-        for j in c.start as usize..c.end as usize {
-            let d2 = dist2(grid.pos[j], m);
-            if d2 < h2 {
-                let u = 1.0 - d2 / h2;
-                score += grid.weight[j] * u * u;
-                support += 1;
+    Some((m, density))
+}
+
+/// Indices of the votes (weight > 0) within `radius` of each centre, in vote order; one pass
+/// over the votes, in parallel over fixed chunks.
+fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>> {
+    const CH: usize = 1 << 14;
+    let r2 = radius * radius;
+    let c32: Vec<[f32; 3]> = centres.iter().map(|c| c.map(|v| v as f32)).collect();
+    // A slightly larger f32 radius first (cheap), then the exact f64 test.
+    let r2f = (r2 * 1.0001 + 1e-9) as f32;
+    let parts: Vec<Vec<Vec<u32>>> = votes
+        .par_chunks(CH)
+        .enumerate()
+        .map(|(ci, chunk)| {
+            let mut out = vec![Vec::new(); centres.len()];
+            for (i, v) in chunk.iter().enumerate() {
+                if v.weight <= 0.0 {
+                    continue;
+                }
+                let p = v.position;
+                for (m, c) in c32.iter().enumerate() {
+                    let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+                    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r2f && dist2(p.map(f64::from), centres[m]) < r2 {
+                        out[m].push((ci * CH + i) as u32);
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    let mut all = vec![Vec::new(); centres.len()];
+    for p in parts {
+        for (a, b) in all.iter_mut().zip(p) {
+            a.extend_from_slice(&b);
+        }
+    }
+    all
+}
+
+/// Fine mean-shift on raw votes from a coarse mode: iterations on a strided subsample of at
+/// most `refine` of the gathered votes (shift below `1e-3 h`), then the density, support and
+/// members over all of them. The gathered ball (radius `3h`) is refreshed if the mode drifts
+/// more than `2h` from its centre. `near`: the votes within `3h` of `start`. `None` also when
+/// the shift comes within `h / 2` of a mode in `known` (it would converge there).
+fn fine_mean_shift(
+    votes: &[PoseVote],
+    start: [f64; 3],
+    mut near: Vec<u32>,
+    h: f64,
+    params: &VoteParams,
+    known: &[PositionMode],
+) -> Option<PositionMode> {
+    let h2 = h * h;
+    let mut centre = start;
+    let mut m = start;
+    for _round in 0..4 {
+        let sub: Vec<u32> = strided(near.len(), params.refine_votes).map(|j| near[j]).collect();
+        for _ in 0..params.max_iterations {
+            let (mut acc, mut ws) = ([0.0f64; 3], 0.0f64);
+            for &j in &sub {
+                let v = &votes[j as usize];
+                let p = v.position.map(f64::from);
+                let d2 = dist2(p, m);
+                if d2 < h2 {
+                    let g = f64::from(v.weight) * (1.0 - d2 / h2);
+                    ws += g;
+                    for k in 0..3 {
+                        acc[k] += g * p[k];
+                    }
+                }
+            }
+            if ws <= 0.0 {
+                return None;
+            }
+            let next = acc.map(|a| a / ws);
+            let shift2 = dist2(next, m);
+            m = next;
+            if known.iter().any(|k| dist2(k.position, m) < 0.25 * h2) {
+                return None; // on its way to a mode already found
+            }
+            if shift2 < 1e-6 * h2 {
+                break;
             }
         }
-    });
-    (support > 0).then_some(PositionMode {
+        if dist2(m, centre) <= 4.0 * h2 {
+            break;
+        }
+        centre = m;
+        near = gather(votes, &[centre], 3.0 * h).pop().unwrap_or_default();
+    }
+    let (mut score, mut members, mut member_weights) = (0.0f64, Vec::new(), Vec::new());
+    for &j in &near {
+        let v = &votes[j as usize];
+        let d2 = dist2(v.position.map(f64::from), m);
+        if d2 < h2 {
+            let u = 1.0 - d2 / h2;
+            let a = f64::from(v.weight) * u * u;
+            score += a;
+            members.push(j);
+            member_weights.push(a);
+        }
+    }
+    (!members.is_empty()).then_some(PositionMode {
         position: m,
         score,
-        support,
+        support: members.len(),
+        members,
+        member_weights,
     })
 }
 
@@ -535,7 +608,7 @@ impl RotKernel {
             inv_denom: 1.0 / (1.0 - ch * ch).max(1e-300),
         }
     }
-    /// `1 - u` (the mean-shift weight profile), <= 0 outside the kernel.
+    /// `1 - u` (the mean-shift weight profile, <= 0 outside the kernel) and `q·p`.
     #[inline]
     fn g(&self, q: [f64; 4], p: [f64; 4]) -> (f64, f64) {
         let d = dot4(q, p);
@@ -550,27 +623,22 @@ struct RotationMode {
     support: usize,
 }
 
-/// Rotation modes among `idx` (indices into the grid's votes) with weights `a`.
-fn rotation_modes(grid: &Grid, idx: &[u32], a: &[f64], params: &VoteParams) -> Vec<RotationMode> {
-    let n = idx.len();
+/// Rotation modes among the unit quaternions `quats` with weights `a`.
+fn rotation_modes(quats: &[[f64; 4]], a: &[f64], params: &VoteParams) -> Vec<RotationMode> {
+    let n = quats.len();
     if n == 0 {
         return Vec::new();
     }
     let kern = RotKernel::new(f64::from(params.rotation_bandwidth));
-    let q_of = |i: usize| grid.quat[idx[i] as usize];
-    let strided = |count: usize| -> Vec<usize> {
-        let m = count.min(n);
-        (0..m).map(|j| j * n / m).collect()
-    };
-    let eval = strided(params.rotation_eval_votes);
-    let mut cands: Vec<(f64, usize)> = strided(params.rotation_candidates)
-        .into_iter()
+    let eval: Vec<usize> = strided(n, params.rotation_eval_votes).collect();
+    let refine: Vec<usize> = strided(n, params.refine_votes).collect();
+    let mut cands: Vec<(f64, usize)> = strided(n, params.rotation_candidates)
         .map(|ci| {
-            let c = q_of(ci);
+            let c = quats[ci];
             let dens: f64 = eval
                 .iter()
                 .map(|&e| {
-                    let (g, _) = kern.g(c, q_of(e));
+                    let (g, _) = kern.g(c, quats[e]);
                     if g > 0.0 {
                         a[e] * g * g
                     } else {
@@ -583,15 +651,14 @@ fn rotation_modes(grid: &Grid, idx: &[u32], a: &[f64], params: &VoteParams) -> V
         .collect();
     cands.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
 
-    // Mean-shift on a set of indices (into idx) until the rotation stops moving.
-    let shift = |start: [f64; 4], set: &mut dyn Iterator<Item = usize>, iters: usize| -> [f64; 4] {
-        let members: Vec<usize> = set.collect();
+    // Mean-shift over the members `set` until the rotation stops moving.
+    let shift = |start: [f64; 4], set: &[usize]| -> [f64; 4] {
         let mut q = start;
-        for _ in 0..iters {
+        for _ in 0..params.max_iterations {
             let mut acc = [0.0f64; 4];
             let mut ws = 0.0;
-            for &i in &members {
-                let p = q_of(i);
+            for &i in set {
+                let p = quats[i];
                 let (g, d) = kern.g(q, p);
                 if g > 0.0 {
                     let w = a[i] * g * d.signum();
@@ -621,19 +688,18 @@ fn rotation_modes(grid: &Grid, idx: &[u32], a: &[f64], params: &VoteParams) -> V
         if modes.len() >= params.rotations_per_position {
             break;
         }
-        let start = q_of(ci);
+        let start = quats[ci];
         if modes.iter().any(|m| quat_angle(m.q, start) < min_sep) {
             continue;
         }
-        // Converge on the evaluation subsample first (cheap), then on all votes.
-        let q = shift(start, &mut eval.iter().copied(), params.max_iterations);
-        let q = shift(q, &mut (0..n), params.max_iterations);
+        // Converge on the evaluation subsample first (cheap), then on the refinement subsample.
+        let q = shift(shift(start, &eval), &refine);
         if modes.iter().any(|m| quat_angle(m.q, q) < 0.5 * min_sep) {
             continue;
         }
         let (mut score, mut support) = (0.0f64, 0usize);
         for i in 0..n {
-            let (g, _) = kern.g(q, q_of(i));
+            let (g, _) = kern.g(q, quats[i]);
             if g > 0.0 {
                 score += a[i] * g * g;
                 support += 1;
@@ -656,13 +722,21 @@ fn rotation_modes(grid: &Grid, idx: &[u32], a: &[f64], params: &VoteParams) -> V
 /// the bad parameter. No votes (or all of weight 0) give no hypotheses.
 pub fn find_modes(votes: &[PoseVote], params: &VoteParams) -> Result<Vec<Hypothesis>> {
     params.validate()?;
+    validate_votes(votes)?;
+    Ok(find_modes_valid(votes, params))
+}
+
+/// [`find_modes`] on votes known to be valid (finite, weight >= 0, non-zero quaternions) with
+/// validated parameters: what `predict` calls, its votes being built from a validated forest.
+pub(crate) fn find_modes_valid(votes: &[PoseVote], params: &VoteParams) -> Vec<Hypothesis> {
     let h = f64::from(params.position_bandwidth);
-    let grid = Grid::build(votes, h)?;
+    let stride = votes.len().div_ceil(params.coarse_votes).max(1);
+    let grid = Grid::build(votes, stride, 2.0 * h);
     if grid.cells.is_empty() {
-        return Ok(Vec::new());
+        return Vec::new();
     }
 
-    // Seeds: the heaviest cells (ties by key order of appearance -> deterministic).
+    // Seeds: the heaviest cells (ties by order of appearance -> deterministic).
     let mut order: Vec<u32> = (0..grid.cells.len() as u32).collect();
     let n_seeds = params.max_seeds.min(order.len());
     let heavier = |a: &u32, b: &u32| {
@@ -678,13 +752,35 @@ pub fn find_modes(votes: &[PoseVote], params: &VoteParams) -> Result<Vec<Hypothe
     order.sort_by(heavier);
 
     let max_iter = params.max_iterations;
-    let mut modes: Vec<PositionMode> = order
+    let coarse: Vec<Option<([f64; 3], f64)>> = order
         .par_iter()
-        .filter_map(|&c| position_mean_shift(&grid, grid.cells[c as usize].centroid, h, max_iter))
+        .map(|&c| coarse_mean_shift(&grid, grid.cells[c as usize].centroid, 2.0 * h, max_iter))
         .collect();
+    // Seeds that reached the same coarse mode (within h / 2) count once; the densest coarse
+    // modes are refined on the raw votes.
+    let mut distinct: Vec<([f64; 3], f64)> = Vec::new();
+    for (m, dens) in coarse.into_iter().flatten() {
+        if distinct.iter().all(|d| dist2(d.0, m) >= 0.25 * h * h) {
+            distinct.push((m, dens));
+        }
+    }
+    distinct.sort_by(|a, b| by_score_then_position((a.1, a.0), (b.1, b.0)));
+    distinct.truncate(params.refine_modes);
+    // Refined densest first; a coarse mode within 2h of a refined one would reach it again.
+    let centres: Vec<[f64; 3]> = distinct.iter().map(|d| d.0).collect();
+    let near = gather(votes, &centres, 3.0 * h);
+    let mut modes: Vec<PositionMode> = Vec::new();
+    for (c, near) in centres.into_iter().zip(near) {
+        if modes.iter().any(|m| dist2(m.position, c) < 4.0 * h * h) {
+            continue;
+        }
+        if let Some(m) = fine_mean_shift(votes, c, near, h, params, &modes) {
+            modes.push(m);
+        }
+    }
     modes.sort_by(|a, b| by_score_then_position((a.score, a.position), (b.score, b.position)));
 
-    // NMS on positions (also merges seeds that converged to the same mode).
+    // NMS on positions (also merges modes that converged to the same place).
     let r = f64::from(params.nms_radius).max(0.25 * h);
     let keep_positions = params.max_hypotheses.saturating_mul(2).max(params.max_hypotheses + 2);
     let mut kept: Vec<PositionMode> = Vec::new();
@@ -697,23 +793,16 @@ pub fn find_modes(votes: &[PoseVote], params: &VoteParams) -> Result<Vec<Hypothe
         }
     }
 
-    // Rotation modes among each position mode's support, in parallel.
-    let h2 = h * h;
+    // Rotation modes among each position mode's members, in parallel.
     let mut hyps: Vec<Hypothesis> = kept
         .par_iter()
         .flat_map_iter(|m| {
-            let (mut idx, mut a) = (Vec::new(), Vec::new());
-            grid.for_neighbour_cells(m.position, |c| {
-                for j in c.start..c.end {
-                    let d2 = dist2(grid.pos[j as usize], m.position);
-                    if d2 < h2 {
-                        let u = 1.0 - d2 / h2;
-                        idx.push(j);
-                        a.push(grid.weight[j as usize] * u * u);
-                    }
-                }
-            });
-            rotation_modes(&grid, &idx, &a, params)
+            let quats: Vec<[f64; 4]> = m
+                .members
+                .iter()
+                .map(|&j| normalise4(votes[j as usize].rotation.map(f64::from)))
+                .collect();
+            rotation_modes(&quats, &m.member_weights, params)
                 .into_iter()
                 .map(move |rm| Hypothesis {
                     rotation: quat_to_matrix(rm.q),
@@ -736,7 +825,7 @@ pub fn find_modes(votes: &[PoseVote], params: &VoteParams) -> Result<Vec<Hypothe
         })
     });
     hyps.truncate(params.max_hypotheses);
-    Ok(hyps)
+    hyps
 }
 
 #[cfg(test)]
@@ -867,6 +956,26 @@ mod tests {
     }
 
     #[test]
+    fn subsampled_coarse_grid_and_refinement_find_the_same_modes() {
+        let (votes, t, q) = scene(11);
+        let full = find_modes(&votes, &VoteParams::default()).unwrap();
+        let p = VoteParams {
+            coarse_votes: 900,
+            refine_votes: 400,
+            rotation_eval_votes: 200,
+            ..Default::default()
+        };
+        let sub = find_modes(&votes, &p).unwrap();
+        for k in 0..2 {
+            assert!(tdist(sub[k].translation, t[k]) < 0.01, "{:?}", sub[k]);
+            assert!(quat_angle(sub[k].quaternion, q[k]) < 2f64.to_radians());
+            assert!(tdist(sub[k].translation, full[k].translation) < 0.005);
+            // Densities and supports still count every vote.
+            assert!((sub[k].position_score - full[k].position_score).abs() < 0.02 * full[k].position_score);
+        }
+    }
+
+    #[test]
     fn rotation_matrix_is_proper_and_matches_quaternion() {
         let (votes, _, _) = scene(2);
         for hy in find_modes(&votes, &VoteParams::default()).unwrap() {
@@ -936,12 +1045,13 @@ mod tests {
         let three = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
         let d = three.install(|| find_modes(&votes, &p).unwrap());
         assert_eq!(a, d);
-        // Reversed input: same modes up to float summation order.
+        // Reversed input: the same modes up to float summation order and which votes the
+        // even-stride subsamples pick (well under a millimetre and a tenth of a degree).
         let rev: Vec<PoseVote> = votes.iter().rev().copied().collect();
         let e = find_modes(&rev, &p).unwrap();
         for (x, y) in a.iter().zip(&e).take(2) {
-            assert!(tdist(x.translation, y.translation) < 1e-9);
-            assert!(quat_angle(x.quaternion, y.quaternion) < 1e-6);
+            assert!(tdist(x.translation, y.translation) < 1e-3, "{x:?} {y:?}");
+            assert!(quat_angle(x.quaternion, y.quaternion) < 0.1f64.to_radians());
         }
     }
 

@@ -11,10 +11,11 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{find_modes, Hypothesis, PoseVote, VoteParams};
-use crate::depth::{sample_parts, DepthStore, Part};
+use super::{find_modes_valid, Hypothesis, PoseVote, VoteParams};
+use crate::depth::{sample_parts, DepthStore, ImageRef, Part};
 use crate::error::{IsaError, Result};
 use crate::forest::Forest;
+use crate::tree::Tree;
 
 /// Pinhole intrinsics (pixels), OpenCV convention: pixel centres at integer `(u, v)`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -203,6 +204,38 @@ fn parts_of(depth: &DepthImage<'_>, params: &PredictParams) -> Result<(DepthStor
     Ok((store, parts))
 }
 
+/// Parts traversed together: their independent paths overlap in the CPU (memory latency and
+/// mispredicted branches of one hide behind the others).
+const LANES: usize = 16;
+
+/// Leaf of every part `(u, v, depth mm > 0)` in `tree`: the same decisions as
+/// [`Tree::leaf_of`](crate::tree::Tree::leaf_of) (same `Feature::eval_at`, `f < threshold` goes
+/// to `child`), traversed [`LANES`] parts at a time with branch-free child selection.
+pub(crate) fn leaves_batched(tree: &Tree, img: &ImageRef<'_>, parts: &[(i32, i32, u16)], out: &mut [u32]) {
+    let nodes = &tree.nodes;
+    for (group, out_group) in parts.chunks(LANES).zip(out.chunks_mut(LANES)) {
+        let mut idx = [0u32; LANES];
+        loop {
+            let mut moved = false;
+            for (k, &(u, v, d)) in group.iter().enumerate() {
+                let nd = &nodes[idx[k] as usize];
+                if nd.is_leaf {
+                    continue;
+                }
+                moved = true;
+                let f = if d == 0 { 0.0 } else { nd.feature.eval_at(img, u, v, d) };
+                idx[k] = nd.child + u32::from(f >= nd.threshold);
+            }
+            if !moved {
+                break;
+            }
+        }
+        for (o, &i) in out_group.iter_mut().zip(&idx) {
+            *o = nodes[i as usize].child;
+        }
+    }
+}
+
 /// Traverses every tree for every part; `meta` also records pixels and trees.
 fn collect_votes(
     forest: &Forest,
@@ -226,12 +259,15 @@ fn collect_votes(
                     k.back_project(f64::from(p[1]), f64::from(p[2]), z).map(|c| c as f32)
                 })
                 .collect();
+            let img = store.image(0);
+            let pix: Vec<(i32, i32, u16)> = chunk.iter().map(|p| (p[1], p[2], img.get(p[1], p[2]))).collect();
+            let mut leaves = vec![0u32; chunk.len()];
             let mut out = ImageVotes::default();
             out.votes.reserve(chunk.len() * n_trees);
             for (t, tree) in forest.trees.iter().enumerate() {
-                for (p, c) in chunk.iter().zip(&centres) {
-                    let leaf = tree.leaf_of(store, p) as usize;
-                    for v in tree.leaf_votes(leaf) {
+                leaves_batched(tree, &img, &pix, &mut leaves);
+                for ((p, c), &leaf) in chunk.iter().zip(&centres).zip(&leaves) {
+                    for v in tree.leaf_votes(leaf as usize) {
                         if v.weight < min_w {
                             continue;
                         }
@@ -291,7 +327,8 @@ pub fn predict(
     k.validate()?;
     let (store, parts) = parts_of(depth, params)?;
     let votes = collect_votes(forest, &store, &parts, k, params, false);
-    find_modes(&votes.votes, &params.vote)
+    // Leaf votes are finite (model files are validated) and so are back-projected pixels.
+    Ok(find_modes_valid(&votes.votes, &params.vote))
 }
 
 #[cfg(test)]
@@ -503,6 +540,22 @@ mod tests {
     #[test]
     fn recovers_the_pose_of_a_training_view_in_a_larger_frame() {
         let (forest, k, poses) = chair_forest();
+        // The batched traversal takes the same decisions as Tree::leaf_of.
+        {
+            let (r, t) = poses[3];
+            let depth = synth::render(&synth::chair(), r, t, &k, 160, 120);
+            let mut store = DepthStore::new();
+            store.push(160, 120, &depth).unwrap();
+            let parts = sample_parts(&store, 1, None, 0).unwrap();
+            let img = store.image(0);
+            let pix: Vec<(i32, i32, u16)> = parts.iter().map(|p| (p[1], p[2], img.get(p[1], p[2]))).collect();
+            for tree in &forest.trees {
+                let mut leaves = vec![0u32; parts.len()];
+                leaves_batched(tree, &img, &pix, &mut leaves);
+                let want: Vec<u32> = parts.iter().map(|p| tree.leaf_of(&store, p)).collect();
+                assert_eq!(leaves, want);
+            }
+        }
         // The same camera, a 320x240 frame: principal point moved, so the chair sits off-centre.
         let kk = Intrinsics {
             cx: 159.5,
