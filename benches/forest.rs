@@ -28,12 +28,19 @@ fn data(n: usize, rng: &mut ChaCha8Rng) -> Data {
     let off = (0..3 * n).map(|_| rng.random_range(-0.5..0.5)).collect();
     let rot = (0..n)
         .flat_map(|_| {
-            let q: [f32; 4] = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
+            let q: [f32; 4] = [
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            ];
             q
         })
         .collect();
     let la = (0..18 * n).map(|_| rng.random_range(-3.1..3.1)).collect();
-    let no = (0..33 * n).map(|_| rng.random_range(-100.0..100.0)).collect();
+    let no = (0..33 * n)
+        .map(|_| rng.random_range(-100.0..100.0))
+        .collect();
     Data { off, rot, la, no }
 }
 
@@ -44,21 +51,38 @@ fn split_search(c: &mut Criterion) {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     for &n in &[10_000usize, 100_000] {
         let d = data(n, &mut rng);
-        let feats: Vec<f32> = (0..n * n_cand).map(|_| rng.random_range(-500.0..500.0f32).round()).collect();
-        for (name, q, reduce) in [("Q1", Quality::Q1, 8), ("Q1+Q2+Q3", Quality::Q1Q2Q3, 8), ("Q1+Q2+Q3_full", Quality::Q1Q2Q3, 0)] {
+        let feats: Vec<f32> = (0..n * n_cand)
+            .map(|_| rng.random_range(-500.0..500.0f32).round())
+            .collect();
+        for (name, q, reduce) in [
+            ("Q1", Quality::Q1, 8),
+            ("Q1+Q2+Q3", Quality::Q1Q2Q3, 8),
+            ("Q1+Q2+Q3_full", Quality::Q1Q2Q3, 0),
+        ] {
             if reduce == 0 && n > 10_000 {
                 continue;
             }
-            let raw = RawTargets { offsets: &d.off, rotations: &d.rot, link_angles: Some((&d.la, 18)), node_offsets: Some((&d.no, 33)) };
+            let raw = RawTargets {
+                offsets: &d.off,
+                rotations: &d.rot,
+                link_angles: Some((&d.la, 18)),
+                node_offsets: Some((&d.no, 33)),
+            };
             let t = build_targets(&raw, q, reduce).unwrap();
             let crit = Crit::new(t.layout.clone(), 1e-4);
             let subset: Vec<u32> = (0..n as u32).collect();
-            let cfg = SplitConfig { n_thresholds: 16, min_samples_leaf: 5, parallel: true };
+            let cfg = SplitConfig {
+                n_thresholds: 16,
+                min_samples_leaf: 5,
+                parallel: true,
+            };
             let f = |k: usize, j: usize| feats[k * n + j];
             group.throughput(Throughput::Elements((n * n_cand) as u64));
-            group.bench_with_input(BenchmarkId::new(name, format!("{}k", n / 1000)), &n, |b, _| {
-                b.iter(|| best_split(&crit, &t, &subset, n_cand, &f, &cfg, 1))
-            });
+            group.bench_with_input(
+                BenchmarkId::new(name, format!("{}k", n / 1000)),
+                &n,
+                |b, _| b.iter(|| best_split(&crit, &t, &subset, n_cand, &f, &cfg, 1)),
+            );
         }
     }
     group.finish();
@@ -99,12 +123,25 @@ fn traversal(c: &mut Criterion) {
         let parts = isa_core::sample_parts(&store, 2, None, 0).unwrap();
         let n = parts.len();
         let off: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.5..0.5)).collect();
-        let rot: Vec<f32> = (0..n).flat_map(|i| [1.0, 0.0, 0.0, (i % 13) as f32 * 0.05]).collect();
-        let params = ForestParams { n_trees: 10, max_depth: 20, n_candidates: 20, quality: Quality::Q1, ..Default::default() };
+        let rot: Vec<f32> = (0..n)
+            .flat_map(|i| [1.0, 0.0, 0.0, (i % 13) as f32 * 0.05])
+            .collect();
+        let params = ForestParams {
+            n_trees: 10,
+            max_depth: 20,
+            n_candidates: 20,
+            quality: Quality::Q1,
+            ..Default::default()
+        };
         let data = TrainingSet {
             store: &store,
             parts: &parts,
-            targets: RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None },
+            targets: RawTargets {
+                offsets: &off,
+                rotations: &rot,
+                link_angles: None,
+                node_offsets: None,
+            },
         };
         let forest = Forest::fit(&params, &data, "{}", None).unwrap();
         (store, parts, forest)

@@ -75,7 +75,7 @@ class ForestParams:
     reduce_dims: int = 8
     bag_fraction: float = 1.0
     leaf_modes: int = 4
-    leaf_max_points: int = 128
+    leaf_max_points: int = 64
     vote_bandwidth_offset: float = 0.05
     vote_bandwidth_rotation: float = 0.35
     seed: int = 0

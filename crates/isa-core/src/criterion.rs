@@ -31,7 +31,9 @@
 //!   that rounding pushes below `reg · 1e-3` is clamped there, so no gain is ever NaN or ±inf.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::cholesky::llt::factor::{cholesky_in_place, cholesky_in_place_scratch, LltRegularization};
+use faer::linalg::cholesky::llt::factor::{
+    cholesky_in_place, cholesky_in_place_scratch, LltRegularization,
+};
 use faer::{Mat, MatMut, Par, Side};
 
 use crate::error::{IsaError, Result};
@@ -72,11 +74,20 @@ impl Layout {
         let mut blocks = Vec::new();
         let (mut start, mut tri) = (0, dim);
         for &(term, d) in dims {
-            blocks.push(Block { term, start, dim: d, tri });
+            blocks.push(Block {
+                term,
+                start,
+                dim: d,
+                tri,
+            });
             start += d;
             tri += d * (d + 1) / 2;
         }
-        Layout { dim, blocks, m: tri }
+        Layout {
+            dim,
+            blocks,
+            m: tri,
+        }
     }
 
     pub fn block(&self, term: Term) -> Option<&Block> {
@@ -152,10 +163,16 @@ impl RawTargets<'_> {
         let n = self.n();
         let bad = |m: String| Err(IsaError::InvalidInput(m));
         if self.offsets.len() != 3 * n {
-            return bad(format!("offsets: length {} is not a multiple of 3", self.offsets.len()));
+            return bad(format!(
+                "offsets: length {} is not a multiple of 3",
+                self.offsets.len()
+            ));
         }
         if self.rotations.len() != 4 * n {
-            return bad(format!("rotations: expected ({n}, 4), got {} values", self.rotations.len()));
+            return bad(format!(
+                "rotations: expected ({n}, 4), got {} values",
+                self.rotations.len()
+            ));
         }
         check_finite("offsets", self.offsets, 3)?;
         check_finite("rotations", self.rotations, 4)?;
@@ -165,13 +182,19 @@ impl RawTargets<'_> {
                 return bad(format!("rotations[{i}]: zero quaternion"));
             }
         }
-        for (name, arr) in [("link_angles", self.link_angles), ("node_offsets", self.node_offsets)] {
+        for (name, arr) in [
+            ("link_angles", self.link_angles),
+            ("node_offsets", self.node_offsets),
+        ] {
             if let Some((a, w)) = arr {
                 if w == 0 {
                     return bad(format!("{name}: has zero columns"));
                 }
                 if a.len() != n * w {
-                    return bad(format!("{name}: expected ({n}, {w}), got {} values", a.len()));
+                    return bad(format!(
+                        "{name}: expected ({n}, {w}), got {} values",
+                        a.len()
+                    ));
                 }
                 check_finite(name, a, w)?;
             }
@@ -214,7 +237,11 @@ pub fn quat_to_6d(q: &[f32]) -> [f64; 6] {
 }
 
 /// Builds the criterion's targets for `quality` (see the module doc for every step).
-pub fn build_targets(raw: &RawTargets<'_>, quality: Quality, reduce_dims: usize) -> Result<Targets> {
+pub fn build_targets(
+    raw: &RawTargets<'_>,
+    quality: Quality,
+    reduce_dims: usize,
+) -> Result<Targets> {
     raw.validate()?;
     let n = raw.n();
     if n == 0 {
@@ -237,7 +264,11 @@ pub fn build_targets(raw: &RawTargets<'_>, quality: Quality, reduce_dims: usize)
 
     // Embedded, column-blocks as f64 (n × d each).
     let mut blocks: Vec<(Term, usize, Vec<f64>)> = Vec::new();
-    blocks.push((Term::Offset, 3, raw.offsets.iter().map(|&v| v as f64).collect()));
+    blocks.push((
+        Term::Offset,
+        3,
+        raw.offsets.iter().map(|&v| v as f64).collect(),
+    ));
     let mut rot = Vec::with_capacity(n * 6);
     for q in raw.rotations.chunks_exact(4) {
         rot.extend_from_slice(&quat_to_6d(q));
@@ -261,11 +292,12 @@ pub fn build_targets(raw: &RawTargets<'_>, quality: Quality, reduce_dims: usize)
     let mut cols: Vec<Vec<f64>> = Vec::new();
     for (term, d, mut data) in blocks {
         standardise(&mut data, n, d);
-        let (data, d) = if matches!(term, Term::Links | Term::Nodes) && reduce_dims > 0 && reduce_dims < d {
-            (pca_project(&data, n, d, reduce_dims)?, reduce_dims)
-        } else {
-            (data, d)
-        };
+        let (data, d) =
+            if matches!(term, Term::Links | Term::Nodes) && reduce_dims > 0 && reduce_dims < d {
+                (pca_project(&data, n, d, reduce_dims)?, reduce_dims)
+            } else {
+                (data, d)
+            };
         dims.push((term, d));
         cols.push(data);
     }
@@ -278,30 +310,102 @@ pub fn build_targets(raw: &RawTargets<'_>, quality: Quality, reduce_dims: usize)
             }
         }
     }
-    Ok(Targets { layout, data: out, n })
+    Ok(Targets {
+        layout,
+        data: out,
+        n,
+    })
+}
+
+/// Rows per parallel chunk of the column statistics (fixed, so sums do not depend on threads).
+const STAT_CHUNK: usize = 8192;
+
+/// Per-column sums of `f(row)` over `n × d` data, in parallel chunks combined in order.
+fn column_sums(data: &[f64], d: usize, f: impl Fn(&[f64], &mut [f64]) + Sync) -> Vec<f64> {
+    use rayon::prelude::*;
+    let parts: Vec<Vec<f64>> = data
+        .par_chunks(STAT_CHUNK * d)
+        .map(|ch| {
+            let mut acc = vec![0f64; d];
+            for r in ch.chunks_exact(d) {
+                f(r, &mut acc);
+            }
+            acc
+        })
+        .collect();
+    let mut out = vec![0f64; d];
+    for p in parts {
+        for (o, v) in out.iter_mut().zip(p) {
+            *o += v;
+        }
+    }
+    out
 }
 
 /// Centres each column and divides it by its population std (1 when below 1e-6).
 fn standardise(data: &mut [f64], n: usize, d: usize) {
-    for j in 0..d {
-        let mean = (0..n).map(|i| data[i * d + j]).sum::<f64>() / n as f64;
-        let var = (0..n).map(|i| (data[i * d + j] - mean).powi(2)).sum::<f64>() / n as f64;
-        let sd = var.sqrt();
-        let scale = if sd < 1e-6 { 1.0 } else { 1.0 / sd };
-        for i in 0..n {
-            data[i * d + j] = (data[i * d + j] - mean) * scale;
-        }
+    use rayon::prelude::*;
+    if d == 0 || n == 0 {
+        return;
     }
+    let mean: Vec<f64> = column_sums(data, d, |r, acc| {
+        for (a, v) in acc.iter_mut().zip(r) {
+            *a += v;
+        }
+    })
+    .into_iter()
+    .map(|s| s / n as f64)
+    .collect();
+    let var = column_sums(data, d, |r, acc| {
+        for ((a, v), m) in acc.iter_mut().zip(r).zip(&mean) {
+            *a += (v - m) * (v - m);
+        }
+    });
+    let scale: Vec<f64> = var
+        .iter()
+        .map(|v| {
+            let sd = (v / n as f64).sqrt();
+            if sd < 1e-6 {
+                1.0
+            } else {
+                1.0 / sd
+            }
+        })
+        .collect();
+    data.par_chunks_mut(STAT_CHUNK * d).for_each(|ch| {
+        for r in ch.chunks_exact_mut(d) {
+            for ((v, m), s) in r.iter_mut().zip(&mean).zip(&scale) {
+                *v = (*v - m) * s;
+            }
+        }
+    });
 }
 
 /// Projects centred `n × d` data on its top-`k` principal components (faer eigen).
 fn pca_project(data: &[f64], n: usize, d: usize, k: usize) -> Result<Vec<f64>> {
+    use rayon::prelude::*;
+    // Upper-triangular second moments, parallel chunks combined in order.
+    let tri: Vec<Vec<f64>> = data
+        .par_chunks(STAT_CHUNK * d)
+        .map(|ch| {
+            let mut acc = vec![0f64; d * d];
+            for r in ch.chunks_exact(d) {
+                for a in 0..d {
+                    let ra = r[a];
+                    let row = &mut acc[a * d..(a + 1) * d];
+                    for b in a..d {
+                        row[b] += ra * r[b];
+                    }
+                }
+            }
+            acc
+        })
+        .collect();
     let mut cov = Mat::<f64>::zeros(d, d);
-    for i in 0..n {
-        let r = &data[i * d..(i + 1) * d];
+    for t in &tri {
         for a in 0..d {
             for b in a..d {
-                cov[(a, b)] += r[a] * r[b];
+                cov[(a, b)] += t[a * d + b];
             }
         }
     }
@@ -312,23 +416,26 @@ fn pca_project(data: &[f64], n: usize, d: usize, k: usize) -> Result<Vec<f64>> {
             cov[(b, a)] = v;
         }
     }
-    let evd = cov
-        .self_adjoint_eigen(Side::Lower)
-        .map_err(|e| IsaError::InvalidInput(format!("principal components of the targets failed: {e:?}")))?;
+    let evd = cov.self_adjoint_eigen(Side::Lower).map_err(|e| {
+        IsaError::InvalidInput(format!("principal components of the targets failed: {e:?}"))
+    })?;
     let u = evd.U();
     // Eigenvalues are nondecreasing: keep the last k columns, largest first.
+    let basis: Vec<f64> = (0..k)
+        .flat_map(|c| (0..d).map(move |a| (a, d - 1 - c)))
+        .map(|(a, col)| u[(a, col)])
+        .collect();
     let mut out = vec![0f64; n * k];
-    for i in 0..n {
-        let r = &data[i * d..(i + 1) * d];
-        for c in 0..k {
-            let col = d - 1 - c;
-            let mut s = 0.0;
-            for a in 0..d {
-                s += r[a] * u[(a, col)];
+    out.par_chunks_mut(STAT_CHUNK * k)
+        .zip(data.par_chunks(STAT_CHUNK * d))
+        .for_each(|(o, ch)| {
+            for (orow, r) in o.chunks_exact_mut(k).zip(ch.chunks_exact(d)) {
+                for (c, ov) in orow.iter_mut().enumerate() {
+                    let b = &basis[c * d..(c + 1) * d];
+                    *ov = r.iter().zip(b).map(|(x, y)| x * y).sum();
+                }
             }
-            out[i * k + c] = s;
-        }
-    }
+        });
     Ok(out)
 }
 
@@ -344,13 +451,23 @@ pub fn logdet_spd(a: &mut [f64], d: usize, floor: f64) -> f64 {
     if d <= SMALL_DIM {
         return logdet_inline(a, d, floor);
     }
-    let reg = LltRegularization { dynamic_regularization_delta: floor, dynamic_regularization_epsilon: floor };
+    let reg = LltRegularization {
+        dynamic_regularization_delta: floor,
+        dynamic_regularization_epsilon: floor,
+    };
     let backup = a[..d * d].to_vec();
     let req = cholesky_in_place_scratch::<f64>(d, Par::Seq, Default::default());
     let mut buf = MemBuffer::new(req);
     let ok = {
         let m = MatMut::from_column_major_slice_mut(&mut a[..d * d], d, d);
-        cholesky_in_place(m, reg, Par::Seq, MemStack::new(&mut buf), Default::default()).is_ok()
+        cholesky_in_place(
+            m,
+            reg,
+            Par::Seq,
+            MemStack::new(&mut buf),
+            Default::default(),
+        )
+        .is_ok()
     };
     if ok {
         let mut s = 0.0;
@@ -553,7 +670,12 @@ pub fn logaddexp(a: f64, b: f64) -> f64 {
 /// Runs exactly the forest's pipeline: embedding, standardisation over these parts, optional
 /// reduction, statistics centred at these parts' mean, ridge `reg`. Q2/Q3 are 0 when the
 /// corresponding array is absent.
-pub fn term_gains(raw: &RawTargets<'_>, left_mask: &[bool], reg: f64, reduce_dims: usize) -> Result<TermValues> {
+pub fn term_gains(
+    raw: &RawTargets<'_>,
+    left_mask: &[bool],
+    reg: f64,
+    reduce_dims: usize,
+) -> Result<TermValues> {
     let quality = match (raw.link_angles.is_some(), raw.node_offsets.is_some()) {
         (false, false) => Quality::Q1,
         (true, false) => Quality::Q1Q2,
@@ -561,15 +683,23 @@ pub fn term_gains(raw: &RawTargets<'_>, left_mask: &[bool], reg: f64, reduce_dim
         (true, true) => Quality::Q1Q2Q3,
     };
     if !(reg.is_finite() && reg > 0.0) {
-        return Err(IsaError::InvalidParameter(format!("reg must be finite and > 0, got {reg}")));
+        return Err(IsaError::InvalidParameter(format!(
+            "reg must be finite and > 0, got {reg}"
+        )));
     }
     let t = build_targets(raw, quality, reduce_dims)?;
     if left_mask.len() != t.n {
-        return Err(IsaError::InvalidInput(format!("left_mask: {} values for {} parts", left_mask.len(), t.n)));
+        return Err(IsaError::InvalidInput(format!(
+            "left_mask: {} values for {} parts",
+            left_mask.len(),
+            t.n
+        )));
     }
     let nl = left_mask.iter().filter(|&&b| b).count();
     if nl == 0 || nl == t.n {
-        return Err(IsaError::InvalidInput("left_mask: both sides of the split need at least one part".into()));
+        return Err(IsaError::InvalidInput(
+            "left_mask: both sides of the split need at least one part".into(),
+        ));
     }
     let crit = Criterion::new(t.layout.clone(), reg);
     let lay = &crit.layout;
@@ -602,7 +732,8 @@ mod tests {
         let mut a = vec![0.0; d * d];
         for i in 0..d {
             for j in 0..d {
-                a[i * d + j] = (0..d).map(|k| g[i * d + k] * g[j * d + k]).sum::<f64>() + if i == j { 0.1 } else { 0.0 };
+                a[i * d + j] = (0..d).map(|k| g[i * d + k] * g[j * d + k]).sum::<f64>()
+                    + if i == j { 0.1 } else { 0.0 };
             }
         }
         a
@@ -614,12 +745,22 @@ mod tests {
         for d in [1, 2, 3, 6, 8, 9, 12, 36] {
             let a = spd(d, &mut rng);
             let x = logdet_inline(&mut a.clone(), d, 1e-12);
-            let reg = LltRegularization { dynamic_regularization_delta: 0.0, dynamic_regularization_epsilon: 0.0 };
+            let reg = LltRegularization {
+                dynamic_regularization_delta: 0.0,
+                dynamic_regularization_epsilon: 0.0,
+            };
             let req = cholesky_in_place_scratch::<f64>(d, Par::Seq, Default::default());
             let mut buf = MemBuffer::new(req);
             let mut b = a.clone();
             let m = MatMut::from_column_major_slice_mut(&mut b, d, d);
-            cholesky_in_place(m, reg, Par::Seq, MemStack::new(&mut buf), Default::default()).unwrap();
+            cholesky_in_place(
+                m,
+                reg,
+                Par::Seq,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
+            .unwrap();
             let y: f64 = 2.0 * (0..d).map(|i| b[i * d + i].ln()).sum::<f64>();
             assert!((x - y).abs() < 1e-9 * (1.0 + y.abs()), "d={d}: {x} vs {y}");
             let z = logdet_spd(&mut a.clone(), d, 1e-12);
@@ -647,7 +788,10 @@ mod tests {
 
     #[test]
     fn quat_6d_identity_and_rotation() {
-        assert_eq!(quat_to_6d(&[1.0, 0.0, 0.0, 0.0]), [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]);
+        assert_eq!(
+            quat_to_6d(&[1.0, 0.0, 0.0, 0.0]),
+            [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+        );
         // 90° about z: x -> y, y -> -x.
         let h = std::f32::consts::FRAC_1_SQRT_2;
         let r = quat_to_6d(&[h, 0.0, 0.0, h]);
@@ -673,7 +817,12 @@ mod tests {
             rot.extend_from_slice(&[1.0, 0.0, 0.0, 0.0]);
             mask.push(left);
         }
-        let raw = RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None };
+        let raw = RawTargets {
+            offsets: &off,
+            rotations: &rot,
+            link_angles: None,
+            node_offsets: None,
+        };
         let g = term_gains(&raw, &mask, 1e-4, 0).unwrap();
         assert!(g[0] > 1.0, "{g:?}");
         let rnd: Vec<bool> = (0..n).map(|i| (i / 2) % 2 == 0).collect();

@@ -71,7 +71,11 @@ impl DepthStore {
         // `data` always ends with one padding pixel after the last image, so a 32-bit gather
         // at any pixel stays inside the buffer (see `splitter::bins_row`).
         self.data.pop();
-        self.index.push(ImageInfo { offset: self.data.len(), width: width as u32, height: height as u32 });
+        self.index.push(ImageInfo {
+            offset: self.data.len(),
+            width: width as u32,
+            height: height as u32,
+        });
         self.data.extend_from_slice(pixels);
         self.data.push(0);
         Ok(self.index.len() - 1)
@@ -101,7 +105,11 @@ impl DepthStore {
     pub fn image(&self, i: usize) -> ImageRef<'_> {
         let info = self.index[i];
         let n = info.width as usize * info.height as usize;
-        ImageRef { data: &self.data[info.offset..info.offset + n], width: info.width as i32, height: info.height as i32 }
+        ImageRef {
+            data: &self.data[info.offset..info.offset + n],
+            width: info.width as i32,
+            height: info.height as i32,
+        }
     }
 
     /// Depth of a part's centre pixel (0 if the part is invalid).
@@ -148,9 +156,16 @@ impl DepthStore {
 /// * Training (`max_per_image = Some(k)`): the same foreground pixels (training crops are
 ///   rendered foreground-only, so depth > 0 *is* the object mask), then at most `k` of them per
 ///   image, drawn without replacement from `seed` and the image index, kept in grid order.
-pub fn sample_parts(store: &DepthStore, stride: usize, max_per_image: Option<usize>, seed: u64) -> Result<Vec<Part>> {
+pub fn sample_parts(
+    store: &DepthStore,
+    stride: usize,
+    max_per_image: Option<usize>,
+    seed: u64,
+) -> Result<Vec<Part>> {
     if stride == 0 {
-        return Err(IsaError::InvalidParameter("stride must be at least 1".into()));
+        return Err(IsaError::InvalidParameter(
+            "stride must be at least 1".into(),
+        ));
     }
     let mut out = Vec::new();
     let mut grid = Vec::new();
@@ -166,7 +181,8 @@ pub fn sample_parts(store: &DepthStore, stride: usize, max_per_image: Option<usi
         }
         match max_per_image {
             Some(k) if grid.len() > k => {
-                let mut rng = ChaCha8Rng::seed_from_u64(crate::rng::mix(&[seed, i as u64, 0x5eed_9a27]));
+                let mut rng =
+                    ChaCha8Rng::seed_from_u64(crate::rng::mix(&[seed, i as u64, 0x5eed_9a27]));
                 let mut pick: Vec<usize> = sample(&mut rng, grid.len(), k).into_vec();
                 pick.sort_unstable();
                 out.extend(pick.into_iter().map(|j| grid[j]));
@@ -219,6 +235,8 @@ mod tests {
         let capped = sample_parts(&s, 1, Some(5), 3).unwrap();
         assert_eq!(capped.len(), 5);
         assert_eq!(capped, sample_parts(&s, 1, Some(5), 3).unwrap());
-        assert!(capped.windows(2).all(|w| (w[0][2], w[0][1]) < (w[1][2], w[1][1])));
+        assert!(capped
+            .windows(2)
+            .all(|w| (w[0][2], w[0][1]) < (w[1][2], w[1][1])));
     }
 }

@@ -83,7 +83,12 @@ impl<'a> PartGeom<'a> {
     pub fn new(store: &'a DepthStore, p: &Part) -> Self {
         let img = store.image(p[0] as usize);
         let d = img.get(p[1], p[2]);
-        PartGeom { img, x: p[1], y: p[2], inv: if d == 0 { 0.0 } else { 1000.0f32 / d as f32 } }
+        PartGeom {
+            img,
+            x: p[1],
+            y: p[2],
+            inv: if d == 0 { 0.0 } else { 1000.0f32 / d as f32 },
+        }
     }
 
     /// Same value as [`Feature::eval`] on this part.
@@ -92,7 +97,8 @@ impl<'a> PartGeom<'a> {
         if self.inv == 0.0 {
             return 0.0;
         }
-        probe(&self.img, self.x, self.y, f.u, self.inv) - probe(&self.img, self.x, self.y, f.v, self.inv)
+        probe(&self.img, self.x, self.y, f.u, self.inv)
+            - probe(&self.img, self.x, self.y, f.v, self.inv)
     }
 }
 
@@ -115,7 +121,13 @@ impl CandidateSoa {
             v.resize(n8, 0.0);
             v
         };
-        CandidateSoa { ux: col(&|c| c.u[0]), uy: col(&|c| c.u[1]), vx: col(&|c| c.v[0]), vy: col(&|c| c.v[1]), n: cands.len() }
+        CandidateSoa {
+            ux: col(&|c| c.u[0]),
+            uy: col(&|c| c.u[1]),
+            vx: col(&|c| c.v[0]),
+            vy: col(&|c| c.v[1]),
+            n: cands.len(),
+        }
     }
 }
 
@@ -127,11 +139,13 @@ pub fn eval_matrix(store: &DepthStore, parts: &[Part], feats: &[Feature]) -> Vec
     if c == 0 {
         return out;
     }
-    out.par_chunks_mut(c).zip(parts.par_iter()).for_each(|(row, p)| {
-        for (o, f) in row.iter_mut().zip(feats) {
-            *o = f.eval(store, p);
-        }
-    });
+    out.par_chunks_mut(c)
+        .zip(parts.par_iter())
+        .for_each(|(row, p)| {
+            for (o, f) in row.iter_mut().zip(feats) {
+                *o = f.eval(store, p);
+            }
+        });
     out
 }
 
@@ -149,23 +163,37 @@ mod tests {
         s.push(5, 5, &px).unwrap();
         let p = [0, 2, 2];
         // u = 2 px·m at 2 m -> 1 px right: (3,2) = 1500; v = 0 -> centre 2000.
-        let f = Feature { u: [2.0, 0.0], v: [0.0, 0.0] };
+        let f = Feature {
+            u: [2.0, 0.0],
+            v: [0.0, 0.0],
+        };
         assert_eq!(f.eval(&s, &p), -500.0);
         // 4 px·m -> 2 px right: missing -> background.
-        let f = Feature { u: [4.0, 0.0], v: [0.0, 0.0] };
+        let f = Feature {
+            u: [4.0, 0.0],
+            v: [0.0, 0.0],
+        };
         assert_eq!(f.eval(&s, &p), BACKGROUND_MM - 2000.0);
         // Far outside on both probes -> 0.
-        let f = Feature { u: [100.0, 0.0], v: [0.0, -100.0] };
+        let f = Feature {
+            u: [100.0, 0.0],
+            v: [0.0, -100.0],
+        };
         assert_eq!(f.eval(&s, &p), 0.0);
         // Rounding: 1.0 px·m at 2 m = 0.5 px rounds up to 1.
-        let f = Feature { u: [1.0, 0.0], v: [-1.0, 0.0] };
+        let f = Feature {
+            u: [1.0, 0.0],
+            v: [-1.0, 0.0],
+        };
         assert_eq!(f.eval(&s, &p), 1500.0 - 2000.0);
         assert_eq!(PartGeom::new(&s, &p).eval(&f), f.eval(&s, &p));
     }
 
     #[test]
     fn floor_matches_std() {
-        for v in [-3.5f32, -3.0, -2.9, -0.5, -0.0, 0.0, 0.49, 0.5, 1.0, 2.5, 1e5, -1e5, 123456.7] {
+        for v in [
+            -3.5f32, -3.0, -2.9, -0.5, -0.0, 0.0, 0.49, 0.5, 1.0, 2.5, 1e5, -1e5, 123456.7,
+        ] {
             assert_eq!(floor_i32(v), v.floor() as i32, "{v}");
         }
     }

@@ -55,12 +55,16 @@ pub struct Forest {
 pub fn with_threads<T: Send>(n_threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
     match n_threads {
         None => Ok(f()),
-        Some(0) => Err(IsaError::InvalidParameter("n_threads must be at least 1".into())),
+        Some(0) => Err(IsaError::InvalidParameter(
+            "n_threads must be at least 1".into(),
+        )),
         Some(k) => {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(k)
                 .build()
-                .map_err(|e| IsaError::InvalidParameter(format!("n_threads: cannot start {k} threads: {e}")))?;
+                .map_err(|e| {
+                    IsaError::InvalidParameter(format!("n_threads: cannot start {k} threads: {e}"))
+                })?;
             Ok(pool.install(f))
         }
     }
@@ -69,7 +73,12 @@ pub fn with_threads<T: Send>(n_threads: Option<usize>, f: impl FnOnce() -> T + S
 impl Forest {
     /// Trains a forest. The model (and its file bytes) depends only on `params` (incl. the
     /// seed) and the data, not on `n_threads`.
-    pub fn fit(params: &ForestParams, data: &TrainingSet<'_>, metadata: &str, n_threads: Option<usize>) -> Result<Forest> {
+    pub fn fit(
+        params: &ForestParams,
+        data: &TrainingSet<'_>,
+        metadata: &str,
+        n_threads: Option<usize>,
+    ) -> Result<Forest> {
         params.validate()?;
         let n = data.parts.len();
         if n == 0 {
@@ -82,7 +91,9 @@ impl Forest {
             )));
         }
         if n > u32::MAX as usize / 2 {
-            return Err(IsaError::InvalidInput(format!("parts: {n} parts is too many")));
+            return Err(IsaError::InvalidInput(format!(
+                "parts: {n} parts is too many"
+            )));
         }
         data.store.validate_parts(data.parts)?;
         with_threads(n_threads, || -> Result<Forest> {
@@ -105,8 +116,12 @@ impl Forest {
                     let bag: Vec<u32> = if n_bag == n {
                         (0..n as u32).collect()
                     } else {
-                        let mut rng = ChaCha8Rng::seed_from_u64(mix(&[params.seed, t as u64, 0xba66]));
-                        let mut v: Vec<u32> = sample(&mut rng, n, n_bag).into_iter().map(|i| i as u32).collect();
+                        let mut rng =
+                            ChaCha8Rng::seed_from_u64(mix(&[params.seed, t as u64, 0xba66]));
+                        let mut v: Vec<u32> = sample(&mut rng, n, n_bag)
+                            .into_iter()
+                            .map(|i| i as u32)
+                            .collect();
                         v.sort_unstable();
                         v
                     };
@@ -134,11 +149,14 @@ impl Forest {
         if t == 0 {
             return Ok(out);
         }
-        out.par_chunks_mut(t).zip(parts.par_iter()).with_min_len(256).for_each(|(row, p)| {
-            for (o, tree) in row.iter_mut().zip(&self.trees) {
-                *o = tree.leaf_of(store, p);
-            }
-        });
+        out.par_chunks_mut(t)
+            .zip(parts.par_iter())
+            .with_min_len(256)
+            .for_each(|(row, p)| {
+                for (o, tree) in row.iter_mut().zip(&self.trees) {
+                    *o = tree.leaf_of(store, p);
+                }
+            });
         Ok(out)
     }
 
@@ -155,7 +173,11 @@ impl Forest {
         for (p, row) in leaves.chunks(t.max(1)).enumerate() {
             for (ti, &l) in row.iter().enumerate() {
                 for v in self.leaf_votes(ti, l as usize) {
-                    out.push(PartVote { part: p as u32, tree: ti as u32, vote: *v });
+                    out.push(PartVote {
+                        part: p as u32,
+                        tree: ti as u32,
+                        vote: *v,
+                    });
                 }
             }
         }
@@ -164,7 +186,10 @@ impl Forest {
 
     /// Total nodes and leaves over all trees.
     pub fn size(&self) -> (usize, usize) {
-        (self.trees.iter().map(|t| t.nodes.len()).sum(), self.trees.iter().map(|t| t.n_leaves()).sum())
+        (
+            self.trees.iter().map(|t| t.nodes.len()).sum(),
+            self.trees.iter().map(|t| t.n_leaves()).sum(),
+        )
     }
 }
 
@@ -214,22 +239,37 @@ pub(crate) mod tests {
         let data = TrainingSet {
             store: &store,
             parts: &parts,
-            targets: RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None },
+            targets: RawTargets {
+                offsets: &off,
+                rotations: &rot,
+                link_angles: None,
+                node_offsets: None,
+            },
         };
         let f = Forest::fit(&toy_params(), &data, "{}", None).unwrap();
         let leaves = f.apply(&store, &parts).unwrap();
         let mut good = 0;
         for (p, row) in leaves.chunks(f.n_trees()).enumerate() {
             let v = f.leaf_votes(0, row[0] as usize)[0];
-            let e = ((v.offset[0] - off[3 * p]).powi(2) + (v.offset[1] - off[3 * p + 1]).powi(2)).sqrt();
-            let a = crate::tree::quat_angle(&v.rotation, &crate::tree::quat_angle_ref(&rot[4 * p..4 * p + 4]));
+            let e = ((v.offset[0] - off[3 * p]).powi(2) + (v.offset[1] - off[3 * p + 1]).powi(2))
+                .sqrt();
+            let a = crate::tree::quat_angle(
+                &v.rotation,
+                &crate::tree::quat_angle_ref(&rot[4 * p..4 * p + 4]),
+            );
             if e < 0.03 && a < 0.1 {
                 good += 1;
             }
         }
-        assert!(good as f64 > 0.9 * parts.len() as f64, "{good} of {}", parts.len());
+        assert!(
+            good as f64 > 0.9 * parts.len() as f64,
+            "{good} of {}",
+            parts.len()
+        );
         let votes = f.part_votes(&store, &parts[..5]).unwrap();
-        assert!(votes.iter().all(|v| v.vote.weight > 0.0 && v.vote.weight <= 1.0));
+        assert!(votes
+            .iter()
+            .all(|v| v.vote.weight > 0.0 && v.vote.weight <= 1.0));
     }
 
     #[test]
@@ -238,32 +278,71 @@ pub(crate) mod tests {
         let data = TrainingSet {
             store: &store,
             parts: &parts,
-            targets: RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None },
+            targets: RawTargets {
+                offsets: &off,
+                rotations: &rot,
+                link_angles: None,
+                node_offsets: None,
+            },
         };
-        let p = ForestParams { max_score_samples: 300, bag_fraction: 0.7, ..toy_params() };
+        let p = ForestParams {
+            max_score_samples: 300,
+            bag_fraction: 0.7,
+            ..toy_params()
+        };
         let a = Forest::fit(&p, &data, "{}", Some(1)).unwrap().to_bytes();
         let b = Forest::fit(&p, &data, "{}", Some(2)).unwrap().to_bytes();
         assert_eq!(a, b);
-        let c = Forest::fit(&ForestParams { seed: 1, ..p }, &data, "{}", Some(2)).unwrap().to_bytes();
+        let c = Forest::fit(&ForestParams { seed: 1, ..p }, &data, "{}", Some(2))
+            .unwrap()
+            .to_bytes();
         assert_ne!(a, c);
     }
 
     #[test]
     fn bad_inputs_are_errors() {
         let (store, parts, off, rot) = toy(1);
-        let raw = RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None };
+        let raw = RawTargets {
+            offsets: &off,
+            rotations: &rot,
+            link_angles: None,
+            node_offsets: None,
+        };
         let mut bad_parts = parts.clone();
         bad_parts[3] = [5, 0, 0];
-        let data = TrainingSet { store: &store, parts: &bad_parts, targets: raw };
-        assert!(matches!(Forest::fit(&toy_params(), &data, "", None), Err(IsaError::InvalidInput(_))));
-        let data = TrainingSet { store: &store, parts: &parts, targets: raw };
-        let p = ForestParams { quality: crate::params::Quality::Q1Q2, ..toy_params() };
+        let data = TrainingSet {
+            store: &store,
+            parts: &bad_parts,
+            targets: raw,
+        };
+        assert!(matches!(
+            Forest::fit(&toy_params(), &data, "", None),
+            Err(IsaError::InvalidInput(_))
+        ));
+        let data = TrainingSet {
+            store: &store,
+            parts: &parts,
+            targets: raw,
+        };
+        let p = ForestParams {
+            quality: crate::params::Quality::Q1Q2,
+            ..toy_params()
+        };
         let e = Forest::fit(&p, &data, "", None).unwrap_err().to_string();
         assert!(e.contains("link_angles"), "{e}");
         let mut nan = off.clone();
         nan[7] = f32::NAN;
-        let data = TrainingSet { store: &store, parts: &parts, targets: RawTargets { offsets: &nan, ..raw } };
-        let e = Forest::fit(&toy_params(), &data, "", None).unwrap_err().to_string();
+        let data = TrainingSet {
+            store: &store,
+            parts: &parts,
+            targets: RawTargets {
+                offsets: &nan,
+                ..raw
+            },
+        };
+        let e = Forest::fit(&toy_params(), &data, "", None)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("offsets[2, 1]"), "{e}");
     }
 }

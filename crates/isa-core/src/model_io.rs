@@ -73,7 +73,16 @@ pub fn encode(forest: &Forest) -> Vec<u8> {
         for n in &t.nodes {
             p.push(n.is_leaf as u8);
             p.extend_from_slice(&n.child.to_le_bytes());
-            put_f32s(&mut p, &[n.threshold, n.feature.u[0], n.feature.u[1], n.feature.v[0], n.feature.v[1]]);
+            put_f32s(
+                &mut p,
+                &[
+                    n.threshold,
+                    n.feature.u[0],
+                    n.feature.u[1],
+                    n.feature.v[0],
+                    n.feature.v[1],
+                ],
+            );
         }
         p.extend_from_slice(&(t.n_leaves() as u32).to_le_bytes());
         for o in &t.leaf_offsets {
@@ -109,7 +118,11 @@ impl<'a> Reader<'a> {
     }
     fn take(&mut self, n: usize) -> R<&'a [u8]> {
         if n > self.left() {
-            return Err(format!("truncated: needs {n} more bytes at offset {}, {} left", self.pos, self.left()));
+            return Err(format!(
+                "truncated: needs {n} more bytes at offset {}, {} left",
+                self.pos,
+                self.left()
+            ));
         }
         let s = &self.b[self.pos..self.pos + n];
         self.pos += n;
@@ -137,7 +150,10 @@ impl<'a> Reader<'a> {
     fn count(&mut self, size: usize, what: &str) -> R<usize> {
         let n = self.u32()? as usize;
         if n.saturating_mul(size) > self.left() {
-            return Err(format!("truncated: {n} {what} do not fit in the {} bytes left", self.left()));
+            return Err(format!(
+                "truncated: {n} {what} do not fit in the {} bytes left",
+                self.left()
+            ));
         }
         Ok(n)
     }
@@ -148,7 +164,8 @@ pub fn decode_payload(payload: &[u8]) -> R<Forest> {
     let mut r = Reader { b: payload, pos: 0 };
     let crate_version = r.str("crate version")?;
     let params_json = r.str("parameters")?;
-    let params = ForestParams::from_json(&params_json).map_err(|e| format!("training configuration: {e}"))?;
+    let params = ForestParams::from_json(&params_json)
+        .map_err(|e| format!("training configuration: {e}"))?;
     let metadata = r.str("metadata")?;
     let n_trees = r.count(12, "trees")?;
     let mut trees = Vec::with_capacity(n_trees);
@@ -168,7 +185,12 @@ pub fn decode_payload(payload: &[u8]) -> R<Forest> {
             let threshold = r.f32()?;
             let u = [r.f32()?, r.f32()?];
             let v = [r.f32()?, r.f32()?];
-            nodes.push(Node { feature: Feature { u, v }, threshold, child, is_leaf });
+            nodes.push(Node {
+                feature: Feature { u, v },
+                threshold,
+                child,
+                is_leaf,
+            });
         }
         let n_leaves = r.count(4, "leaves")?;
         let mut leaf_offsets = Vec::with_capacity(n_leaves + 1);
@@ -181,7 +203,11 @@ pub fn decode_payload(payload: &[u8]) -> R<Forest> {
             let weight = r.f32()?;
             let offset = [r.f32()?, r.f32()?, r.f32()?];
             let rotation = [r.f32()?, r.f32()?, r.f32()?, r.f32()?];
-            votes.push(Vote { weight, offset, rotation });
+            votes.push(Vote {
+                weight,
+                offset,
+                rotation,
+            });
         }
         // Structure.
         let mut leaf_seen = vec![false; n_leaves];
@@ -189,13 +215,18 @@ pub fn decode_payload(payload: &[u8]) -> R<Forest> {
             if n.is_leaf {
                 let l = n.child as usize;
                 if l >= n_leaves || leaf_seen[l] {
-                    return Err(format!("tree {ti}: node {i} names leaf {l} (have {n_leaves}, or used twice)"));
+                    return Err(format!(
+                        "tree {ti}: node {i} names leaf {l} (have {n_leaves}, or used twice)"
+                    ));
                 }
                 leaf_seen[l] = true;
             } else {
                 let c = n.child as usize;
                 if c <= i || c + 1 >= n_nodes {
-                    return Err(format!("tree {ti}: node {i} has children {c}, {} out of order/range", c + 1));
+                    return Err(format!(
+                        "tree {ti}: node {i} has children {c}, {} out of order/range",
+                        c + 1
+                    ));
                 }
             }
         }
@@ -205,28 +236,50 @@ pub fn decode_payload(payload: &[u8]) -> R<Forest> {
         {
             return Err(format!("tree {ti}: leaf vote ranges are inconsistent"));
         }
-        trees.push(Tree { nodes, leaf_offsets, votes });
+        trees.push(Tree {
+            nodes,
+            leaf_offsets,
+            votes,
+        });
     }
     if r.left() != 0 {
         return Err(format!("{} unexpected bytes after the last tree", r.left()));
     }
     if trees.len() != params.n_trees {
-        return Err(format!("{} trees but the configuration says {}", trees.len(), params.n_trees));
+        return Err(format!(
+            "{} trees but the configuration says {}",
+            trees.len(),
+            params.n_trees
+        ));
     }
-    Ok(Forest { params, trees, metadata, crate_version })
+    Ok(Forest {
+        params,
+        trees,
+        metadata,
+        crate_version,
+    })
 }
 
 /// Parses a whole file's bytes; `path` only names the file in errors.
 pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
-    let err = |reason: String| IsaError::ModelFormat { path: path.to_string(), reason };
+    let err = |reason: String| IsaError::ModelFormat {
+        path: path.to_string(),
+        reason,
+    };
     if bytes.len() < 8 || &bytes[..8] != MAGIC {
         if bytes.len() < 8 && MAGIC.starts_with(bytes) {
-            return Err(err(format!("truncated: {} bytes, not even a header", bytes.len())));
+            return Err(err(format!(
+                "truncated: {} bytes, not even a header",
+                bytes.len()
+            )));
         }
         return Err(err("not an isa forest model (wrong magic bytes)".into()));
     }
     if bytes.len() < HEADER {
-        return Err(err(format!("truncated: {} bytes, the header needs {HEADER}", bytes.len())));
+        return Err(err(format!(
+            "truncated: {} bytes, the header needs {HEADER}",
+            bytes.len()
+        )));
     }
     let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
     if version > FORMAT_VERSION {
@@ -241,10 +294,15 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
     let len = u64::from_le_bytes(bytes[16..24].try_into().unwrap());
     let have = (bytes.len() - HEADER) as u64;
     if len > have {
-        return Err(err(format!("truncated: payload of {len} bytes, only {have} present")));
+        return Err(err(format!(
+            "truncated: payload of {len} bytes, only {have} present"
+        )));
     }
     if len < have {
-        return Err(err(format!("corrupted: {} trailing bytes after the payload", have - len)));
+        return Err(err(format!(
+            "corrupted: {} trailing bytes after the payload",
+            have - len
+        )));
     }
     let sum = u64::from_le_bytes(bytes[24..32].try_into().unwrap());
     let payload = &bytes[HEADER..];
@@ -257,10 +315,22 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
 /// Writes a forest atomically (temporary file in the same folder, fsync, rename).
 pub fn save(forest: &Forest, path: &Path) -> Result<()> {
     let bytes = encode(forest);
-    let io = |e: std::io::Error| IsaError::Io { path: path.display().to_string(), source: e };
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().ok_or_else(|| IsaError::InvalidInput(format!("path {} names no file", path.display())))?;
-    let tmp = dir.join(format!(".{}.tmp{}", name.to_string_lossy(), std::process::id()));
+    let io = |e: std::io::Error| IsaError::Io {
+        path: path.display().to_string(),
+        source: e,
+    };
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .ok_or_else(|| IsaError::InvalidInput(format!("path {} names no file", path.display())))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
     let res = (|| {
         let mut f = fs::File::create(&tmp)?;
         f.write_all(&bytes)?;
@@ -276,7 +346,10 @@ pub fn save(forest: &Forest, path: &Path) -> Result<()> {
 
 /// Reads a forest file.
 pub fn load(path: &Path) -> Result<Forest> {
-    let bytes = fs::read(path).map_err(|e| IsaError::Io { path: path.display().to_string(), source: e })?;
+    let bytes = fs::read(path).map_err(|e| IsaError::Io {
+        path: path.display().to_string(),
+        source: e,
+    })?;
     decode(&bytes, &path.display().to_string())
 }
 
@@ -312,9 +385,19 @@ mod tests {
         let data = TrainingSet {
             store: &store,
             parts: &parts,
-            targets: RawTargets { offsets: &off, rotations: &rot, link_angles: None, node_offsets: None },
+            targets: RawTargets {
+                offsets: &off,
+                rotations: &rot,
+                link_angles: None,
+                node_offsets: None,
+            },
         };
-        let p = ForestParams { n_trees: 2, max_depth: 3, n_candidates: 5, ..toy_params() };
+        let p = ForestParams {
+            n_trees: 2,
+            max_depth: 3,
+            n_candidates: 5,
+            ..toy_params()
+        };
         Forest::fit(&p, &data, r#"{"category":"toy"}"#, None).unwrap()
     }
 
@@ -332,8 +415,15 @@ mod tests {
         let path = dir.join("m.isa");
         f.save(&path).unwrap();
         assert_eq!(Forest::load(&path).unwrap(), f);
-        assert_eq!(fs::read_dir(&dir).unwrap().count(), 1, "no temporary file left");
-        assert!(matches!(Forest::load(dir.join("missing.isa")), Err(IsaError::Io { .. })));
+        assert_eq!(
+            fs::read_dir(&dir).unwrap().count(),
+            1,
+            "no temporary file left"
+        );
+        assert!(matches!(
+            Forest::load(dir.join("missing.isa")),
+            Err(IsaError::Io { .. })
+        ));
         fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -345,14 +435,23 @@ mod tests {
         }
         let mut foreign = b.clone();
         foreign[0] = b'P';
-        assert!(decode(&foreign, "f").unwrap_err().to_string().contains("magic"));
+        assert!(decode(&foreign, "f")
+            .unwrap_err()
+            .to_string()
+            .contains("magic"));
         let mut newer = b.clone();
         newer[8..12].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
-        assert!(decode(&newer, "n").unwrap_err().to_string().contains("newer"));
+        assert!(decode(&newer, "n")
+            .unwrap_err()
+            .to_string()
+            .contains("newer"));
         let mut flipped = b.clone();
         let k = flipped.len() - 3;
         flipped[k] ^= 0x40;
-        assert!(decode(&flipped, "c").unwrap_err().to_string().contains("checksum"));
+        assert!(decode(&flipped, "c")
+            .unwrap_err()
+            .to_string()
+            .contains("checksum"));
     }
 
     fn reseal(payload: &[u8]) -> Vec<u8> {

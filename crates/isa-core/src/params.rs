@@ -23,7 +23,11 @@ pub enum Quality {
 impl Quality {
     /// Parses "Q1", "Q1+Q2", "Q1+Q3" or "Q1+Q2+Q3" (spaces and case ignored).
     pub fn parse(s: &str) -> Result<Self> {
-        let t: String = s.chars().filter(|c| !c.is_whitespace()).collect::<String>().to_uppercase();
+        let t: String = s
+            .chars()
+            .filter(|c| !c.is_whitespace())
+            .collect::<String>()
+            .to_uppercase();
         match t.as_str() {
             "Q1" => Ok(Quality::Q1),
             "Q1+Q2" => Ok(Quality::Q1Q2),
@@ -115,7 +119,7 @@ impl Default for ForestParams {
             reduce_dims: 8,
             bag_fraction: 1.0,
             leaf_modes: 4,
-            leaf_max_points: 128,
+            leaf_max_points: 64,
             vote_bandwidth_offset: 0.05,
             vote_bandwidth_rotation: 0.35,
             seed: 0,
@@ -130,10 +134,16 @@ impl ForestParams {
             Err(IsaError::InvalidParameter(msg))
         }
         if self.n_trees == 0 || self.n_trees > 10_000 {
-            return bad(format!("n_trees must be in 1..=10000, got {}", self.n_trees));
+            return bad(format!(
+                "n_trees must be in 1..=10000, got {}",
+                self.n_trees
+            ));
         }
         if self.max_depth > 64 {
-            return bad(format!("max_depth must be at most 64, got {}", self.max_depth));
+            return bad(format!(
+                "max_depth must be at most 64, got {}",
+                self.max_depth
+            ));
         }
         if self.min_samples_leaf == 0 {
             return bad("min_samples_leaf must be at least 1".into());
@@ -148,13 +158,22 @@ impl ForestParams {
             return bad(format!("min_gain must be finite, got {}", self.min_gain));
         }
         if self.n_candidates == 0 || self.n_candidates > 100_000 {
-            return bad(format!("n_candidates must be in 1..=100000, got {}", self.n_candidates));
+            return bad(format!(
+                "n_candidates must be in 1..=100000, got {}",
+                self.n_candidates
+            ));
         }
         if self.n_thresholds == 0 || self.n_thresholds > 255 {
-            return bad(format!("n_thresholds must be in 1..=255, got {}", self.n_thresholds));
+            return bad(format!(
+                "n_thresholds must be in 1..=255, got {}",
+                self.n_thresholds
+            ));
         }
         if !(self.max_offset.is_finite() && self.max_offset > 0.0 && self.max_offset <= 1e5) {
-            return bad(format!("max_offset must be in (0, 1e5] pixel·metres, got {}", self.max_offset));
+            return bad(format!(
+                "max_offset must be in (0, 1e5] pixel·metres, got {}",
+                self.max_offset
+            ));
         }
         if self.max_score_samples < 2 * self.min_samples_leaf {
             return bad(format!(
@@ -166,19 +185,34 @@ impl ForestParams {
             return bad(format!("reg must be finite and > 0, got {}", self.reg));
         }
         if self.reduce_dims > 4096 {
-            return bad(format!("reduce_dims must be at most 4096 (0 = full), got {}", self.reduce_dims));
+            return bad(format!(
+                "reduce_dims must be at most 4096 (0 = full), got {}",
+                self.reduce_dims
+            ));
         }
         if !(self.bag_fraction.is_finite() && self.bag_fraction > 0.0 && self.bag_fraction <= 1.0) {
-            return bad(format!("bag_fraction must be in (0, 1], got {}", self.bag_fraction));
+            return bad(format!(
+                "bag_fraction must be in (0, 1], got {}",
+                self.bag_fraction
+            ));
         }
         if self.leaf_modes == 0 || self.leaf_modes > 64 {
-            return bad(format!("leaf_modes must be in 1..=64, got {}", self.leaf_modes));
+            return bad(format!(
+                "leaf_modes must be in 1..=64, got {}",
+                self.leaf_modes
+            ));
         }
         if self.leaf_max_points == 0 || self.leaf_max_points > 100_000 {
-            return bad(format!("leaf_max_points must be in 1..=100000, got {}", self.leaf_max_points));
+            return bad(format!(
+                "leaf_max_points must be in 1..=100000, got {}",
+                self.leaf_max_points
+            ));
         }
         if !(self.vote_bandwidth_offset.is_finite() && self.vote_bandwidth_offset > 0.0) {
-            return bad(format!("vote_bandwidth_offset must be > 0 metres, got {}", self.vote_bandwidth_offset));
+            return bad(format!(
+                "vote_bandwidth_offset must be > 0 metres, got {}",
+                self.vote_bandwidth_offset
+            ));
         }
         if !(self.vote_bandwidth_rotation.is_finite() && self.vote_bandwidth_rotation > 0.0) {
             return bad(format!(
@@ -225,7 +259,10 @@ mod tests {
 
     #[test]
     fn bad_params_named() {
-        let p = ForestParams { n_thresholds: 0, ..Default::default() };
+        let p = ForestParams {
+            n_thresholds: 0,
+            ..Default::default()
+        };
         let e = p.validate().unwrap_err().to_string();
         assert!(e.contains("n_thresholds"), "{e}");
     }

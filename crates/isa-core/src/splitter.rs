@@ -96,7 +96,12 @@ impl NodeData {
         }
         let mut scratch = Vec::new();
         let h_parent = crit.entropies(&parent, n.max(1), &mut scratch);
-        NodeData { z, parent, h_parent, n }
+        NodeData {
+            z,
+            parent,
+            h_parent,
+            n,
+        }
     }
 }
 
@@ -129,7 +134,16 @@ pub const F32_BLOCK: usize = 128;
 /// are bit-identical on every CPU path.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn accumulate_group_body(z: &[f32], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
+fn accumulate_group_body(
+    z: &[f32],
+    m: usize,
+    n: usize,
+    bins: &[u8],
+    nc: usize,
+    c0: usize,
+    accs: &mut [Vec<f64>],
+    cnts: &mut [Vec<u32>],
+) {
     let nb = accs.iter().map(|a| a.len() / m.max(1)).max().unwrap_or(0);
     let mut part = vec![0f32; nb * m];
     let mut touched = vec![false; nb];
@@ -167,12 +181,30 @@ fn accumulate_group_body(z: &[f32], m: usize, n: usize, bins: &[u8], nc: usize, 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn accumulate_group_avx2(z: &[f32], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
+unsafe fn accumulate_group_avx2(
+    z: &[f32],
+    m: usize,
+    n: usize,
+    bins: &[u8],
+    nc: usize,
+    c0: usize,
+    accs: &mut [Vec<f64>],
+    cnts: &mut [Vec<u32>],
+) {
     accumulate_group_body(z, m, n, bins, nc, c0, accs, cnts)
 }
 
 #[allow(clippy::too_many_arguments)]
-fn accumulate_group(z: &[f32], m: usize, n: usize, bins: &[u8], nc: usize, c0: usize, accs: &mut [Vec<f64>], cnts: &mut [Vec<u32>]) {
+fn accumulate_group(
+    z: &[f32],
+    m: usize,
+    n: usize,
+    bins: &[u8],
+    nc: usize,
+    c0: usize,
+    accs: &mut [Vec<f64>],
+    cnts: &mut [Vec<u32>],
+) {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx2") {
@@ -196,12 +228,20 @@ pub struct Thresholds {
 
 impl Thresholds {
     /// `feature(c, j)`: candidate `c` on the node's `j`-th scored part (`j < n`).
-    pub fn draw<F: Fn(usize, usize) -> f32>(n: usize, n_candidates: usize, n_thresholds: usize, feature: &F, node_seed: u64) -> Self {
+    pub fn draw<F: Fn(usize, usize) -> f32>(
+        n: usize,
+        n_candidates: usize,
+        n_thresholds: usize,
+        feature: &F,
+        node_seed: u64,
+    ) -> Self {
         let kmax = thresholds_for(n, n_thresholds.min(255));
         let values: Vec<Vec<f32>> = (0..n_candidates)
             .map(|c| {
                 let mut rng = ChaCha8Rng::seed_from_u64(mix(&[node_seed, c as u64, 0x7468_7265]));
-                let mut thr: Vec<f32> = (0..kmax).map(|_| feature(c, rng.random_range(0..n))).collect();
+                let mut thr: Vec<f32> = (0..kmax)
+                    .map(|_| feature(c, rng.random_range(0..n)))
+                    .collect();
                 thr.sort_unstable_by(|a, b| a.total_cmp(b));
                 thr.dedup();
                 thr
@@ -222,7 +262,12 @@ impl Thresholds {
                 transposed[(c / 8) * 16 + k][c % 8] = p[k];
             }
         }
-        Thresholds { values, padded, transposed, wide: kmax > 16 }
+        Thresholds {
+            values,
+            padded,
+            transposed,
+            wide: kmax > 16,
+        }
     }
 
     pub fn n_candidates(&self) -> usize {
@@ -243,7 +288,13 @@ impl Thresholds {
 /// Bins of every candidate of `soa` on one part: `out[c] = bin(c, f_c(part))` (AVX2 when
 /// available; the result is bit-identical to the scalar path).
 #[inline]
-pub fn bins_row(thr: &Thresholds, soa: &CandidateSoa, cands: &[Feature], g: &PartGeom<'_>, out: &mut [u8]) {
+pub fn bins_row(
+    thr: &Thresholds,
+    soa: &CandidateSoa,
+    cands: &[Feature],
+    g: &PartGeom<'_>,
+    out: &mut [u8],
+) {
     #[cfg(target_arch = "x86_64")]
     {
         if !thr.wide && g.inv != 0.0 && std::arch::is_x86_feature_detected!("avx2") {
@@ -265,15 +316,24 @@ unsafe fn bins_row_avx2(thr: &Thresholds, soa: &CandidateSoa, g: &PartGeom<'_>, 
     let inv = _mm256_set1_ps(g.inv);
     let half = _mm256_set1_ps(0.5);
     let (x, y) = (_mm256_set1_epi32(g.x), _mm256_set1_epi32(g.y));
-    let (w, h) = (_mm256_set1_epi32(g.img.width), _mm256_set1_epi32(g.img.height));
+    let (w, h) = (
+        _mm256_set1_epi32(g.img.width),
+        _mm256_set1_epi32(g.img.height),
+    );
     let minus1 = _mm256_set1_epi32(-1);
     let zero = _mm256_setzero_si256();
     let lo16 = _mm256_set1_epi32(0xFFFF);
     let bg = _mm256_set1_ps(crate::features::BACKGROUND_MM);
     let base = g.img.data.as_ptr() as *const i32;
     let probe = |ox: __m256, oy: __m256| -> __m256 {
-        let px = _mm256_add_epi32(x, _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(_mm256_mul_ps(ox, inv), half))));
-        let py = _mm256_add_epi32(y, _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(_mm256_mul_ps(oy, inv), half))));
+        let px = _mm256_add_epi32(
+            x,
+            _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(_mm256_mul_ps(ox, inv), half))),
+        );
+        let py = _mm256_add_epi32(
+            y,
+            _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(_mm256_mul_ps(oy, inv), half))),
+        );
         let inside = _mm256_and_si256(
             _mm256_and_si256(_mm256_cmpgt_epi32(w, px), _mm256_cmpgt_epi32(px, minus1)),
             _mm256_and_si256(_mm256_cmpgt_epi32(h, py), _mm256_cmpgt_epi32(py, minus1)),
@@ -289,8 +349,14 @@ unsafe fn bins_row_avx2(thr: &Thresholds, soa: &CandidateSoa, g: &PartGeom<'_>, 
     for gi in 0..nc.div_ceil(8) {
         let o = gi * 8;
         let f = _mm256_sub_ps(
-            probe(_mm256_loadu_ps(soa.ux.as_ptr().add(o)), _mm256_loadu_ps(soa.uy.as_ptr().add(o))),
-            probe(_mm256_loadu_ps(soa.vx.as_ptr().add(o)), _mm256_loadu_ps(soa.vy.as_ptr().add(o))),
+            probe(
+                _mm256_loadu_ps(soa.ux.as_ptr().add(o)),
+                _mm256_loadu_ps(soa.uy.as_ptr().add(o)),
+            ),
+            probe(
+                _mm256_loadu_ps(soa.vx.as_ptr().add(o)),
+                _mm256_loadu_ps(soa.vy.as_ptr().add(o)),
+            ),
         );
         let mut cnt = zero;
         for k in 0..16 {
@@ -324,7 +390,9 @@ where
     }
     if parallel && n * nc >= 8192 {
         const ROWS: usize = 256;
-        bins.par_chunks_mut(ROWS * nc).enumerate().for_each(|(k, ch)| fill(k * ROWS, ch));
+        bins.par_chunks_mut(ROWS * nc)
+            .enumerate()
+            .for_each(|(k, ch)| fill(k * ROWS, ch));
     } else {
         fill(0, &mut bins);
     }
@@ -332,7 +400,14 @@ where
 }
 
 /// Best split of a node from its statistics, thresholds and part-major bins.
-pub fn score_bins(crit: &Criterion, node: &NodeData, thr: &Thresholds, bins: &[u8], min_samples_leaf: usize, parallel: bool) -> Option<SplitResult> {
+pub fn score_bins(
+    crit: &Criterion,
+    node: &NodeData,
+    thr: &Thresholds,
+    bins: &[u8],
+    min_samples_leaf: usize,
+    parallel: bool,
+) -> Option<SplitResult> {
     let (m, n, nc) = (crit.layout.m, node.n, thr.n_candidates());
     let min_leaf = min_samples_leaf.max(1);
     if n < 2 * min_leaf || nc == 0 {
@@ -342,17 +417,34 @@ pub fn score_bins(crit: &Criterion, node: &NodeData, thr: &Thresholds, bins: &[u
     let score_group = |g: usize| -> Vec<Option<SplitResult>> {
         let c0 = g * CAND_GROUP;
         let c1 = (c0 + CAND_GROUP).min(nc);
-        let mut accs: Vec<Vec<f64>> = (c0..c1).map(|c| vec![0f64; (thr.values[c].len() + 1) * m]).collect();
-        let mut cnts: Vec<Vec<u32>> = (c0..c1).map(|c| vec![0u32; thr.values[c].len() + 1]).collect();
+        let mut accs: Vec<Vec<f64>> = (c0..c1)
+            .map(|c| vec![0f64; (thr.values[c].len() + 1) * m])
+            .collect();
+        let mut cnts: Vec<Vec<u32>> = (c0..c1)
+            .map(|c| vec![0u32; thr.values[c].len() + 1])
+            .collect();
         accumulate_group(&node.z, m, n, bins, nc, c0, &mut accs, &mut cnts);
         (c0..c1)
             .enumerate()
-            .map(|(gi, c)| score_thresholds(crit, node, c, &thr.values[c], &accs[gi], &cnts[gi], min_leaf))
+            .map(|(gi, c)| {
+                score_thresholds(
+                    crit,
+                    node,
+                    c,
+                    &thr.values[c],
+                    &accs[gi],
+                    &cnts[gi],
+                    min_leaf,
+                )
+            })
             .collect()
     };
     let n_groups = nc.div_ceil(CAND_GROUP);
     let results: Vec<Option<SplitResult>> = if parallel && n * nc >= 8192 {
-        (0..n_groups).into_par_iter().flat_map_iter(score_group).collect()
+        (0..n_groups)
+            .into_par_iter()
+            .flat_map_iter(score_group)
+            .collect()
     } else {
         (0..n_groups).flat_map(score_group).collect()
     };
@@ -427,7 +519,14 @@ fn score_thresholds(
             continue;
         }
         if best.is_none_or(|b| total > b.gain) {
-            best = Some(SplitResult { candidate: c, threshold: thr[t], gain: total, term_gains: g, n_left: nl, n_right: nr });
+            best = Some(SplitResult {
+                candidate: c,
+                threshold: thr[t],
+                gain: total,
+                term_gains: g,
+                n_left: nl,
+                n_right: nr,
+            });
         }
     }
     best
@@ -445,20 +544,38 @@ mod tests {
         let n = 400;
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let off: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let rot: Vec<f32> = (0..n).flat_map(|i| [1.0, 0.0, 0.0, (i % 7) as f32 * 0.1]).collect();
+        let rot: Vec<f32> = (0..n)
+            .flat_map(|i| [1.0, 0.0, 0.0, (i % 7) as f32 * 0.1])
+            .collect();
         let la: Vec<f32> = (0..2 * n).map(|_| rng.random_range(-3.0..3.0)).collect();
-        let feats: Vec<f32> = (0..n * 5).map(|i| off[3 * (i / 5)] * (i % 5) as f32 + rng.random_range(-0.1..0.1)).collect();
-        let raw = RawTargets { offsets: &off, rotations: &rot, link_angles: Some((&la, 2)), node_offsets: None };
+        let feats: Vec<f32> = (0..n * 5)
+            .map(|i| off[3 * (i / 5)] * (i % 5) as f32 + rng.random_range(-0.1..0.1))
+            .collect();
+        let raw = RawTargets {
+            offsets: &off,
+            rotations: &rot,
+            link_angles: Some((&la, 2)),
+            node_offsets: None,
+        };
         let t = build_targets(&raw, Quality::Q1Q2, 0).unwrap();
         let crit = Criterion::new(t.layout.clone(), 1e-4);
         let subset: Vec<u32> = (0..n as u32).collect();
         let f = |c: usize, j: usize| feats[j * 5 + c];
         for parallel in [false, true] {
-            let cfg = SplitConfig { n_thresholds: 16, min_samples_leaf: 3, parallel };
+            let cfg = SplitConfig {
+                n_thresholds: 16,
+                min_samples_leaf: 3,
+                parallel,
+            };
             let b = best_split(&crit, &t, &subset, 5, &f, &cfg, 9).unwrap();
-            let mask: Vec<bool> = (0..n).map(|p| feats[p * 5 + b.candidate] < b.threshold).collect();
+            let mask: Vec<bool> = (0..n)
+                .map(|p| feats[p * 5 + b.candidate] < b.threshold)
+                .collect();
             let g = term_gains(&raw, &mask, 1e-4, 0).unwrap();
-            assert!((g[0] + g[1] - b.gain).abs() < 1e-4 * b.gain.abs().max(1.0), "{g:?} vs {b:?}");
+            assert!(
+                (g[0] + g[1] - b.gain).abs() < 1e-4 * b.gain.abs().max(1.0),
+                "{g:?} vs {b:?}"
+            );
             assert_eq!(mask.iter().filter(|&&x| x).count(), b.n_left);
             assert!(b.candidate != 0, "candidate 0 carries no information");
         }
@@ -471,7 +588,15 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let mut store = crate::depth::DepthStore::new();
         for (w, h) in [(13usize, 9usize), (31, 17)] {
-            let px: Vec<u16> = (0..w * h).map(|_| if rng.random_range(0.0..1.0) < 0.2 { 0 } else { rng.random_range(300..5000) }).collect();
+            let px: Vec<u16> = (0..w * h)
+                .map(|_| {
+                    if rng.random_range(0.0..1.0) < 0.2 {
+                        0
+                    } else {
+                        rng.random_range(300..5000)
+                    }
+                })
+                .collect();
             store.push(w, h, &px).unwrap();
         }
         let cands = crate::tree::draw_candidates(&mut rng, 21, 40.0);
@@ -489,7 +614,9 @@ mod tests {
                     let thr = Thresholds::draw(30, cands.len(), 16, &feat, (u * 7 + v) as u64);
                     let mut a = vec![0u8; cands.len()];
                     bins_row(&thr, &soa, &cands, &g, &mut a);
-                    let b: Vec<u8> = (0..cands.len()).map(|c| thr.bin(c, g.eval(&cands[c]))).collect();
+                    let b: Vec<u8> = (0..cands.len())
+                        .map(|c| thr.bin(c, g.eval(&cands[c])))
+                        .collect();
                     assert_eq!(a, b, "part {p:?}");
                 }
             }

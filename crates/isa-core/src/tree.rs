@@ -12,7 +12,8 @@
 //! A leaf keeps at most `leaf_modes` weighted [`Vote`]s summarising the SSC offsets `Δx` and
 //! rotations `q` of the training parts that reached it: on at most `leaf_max_points` of them (an
 //! even-stride subset), with the joint distance
-//! `d² = |Δx_i − Δx_j|² / h_x² + angle(q_i, q_j)² / h_θ²`, each point gets the kernel density
+//! `d² = |Δx_i − Δx_j|² / h_x² + angle(q_i, q_j)² / h_θ²` (the squared angle taken as
+//! `8 (1 − |q_i·q_j|)`, its second-order form), each point gets the kernel density
 //! `Σ_j exp(−d²/2)`; in decreasing density the densest unassigned point opens a mode that takes
 //! every unassigned point within `d² ≤ 4`. A mode's vote is the mean offset of its members,
 //! their sign-aligned normalised mean quaternion (w ≥ 0) and `weight = members / points`, so the
@@ -84,7 +85,11 @@ impl Tree {
             if nd.is_leaf {
                 return nd.child;
             }
-            let f = if d == 0 { 0.0 } else { nd.feature.eval_at(&img, p[1], p[2], d) };
+            let f = if d == 0 {
+                0.0
+            } else {
+                nd.feature.eval_at(&img, p[1], p[2], d)
+            };
             i = nd.child as usize + (f >= nd.threshold) as usize;
         }
     }
@@ -119,15 +124,26 @@ pub struct TrainContext<'a> {
 
 enum Outcome {
     Leaf(Vec<Vote>),
-    Split { feature: Feature, threshold: f32, left: Vec<u32>, right: Vec<u32> },
+    Split {
+        feature: Feature,
+        threshold: f32,
+        left: Vec<u32>,
+        right: Vec<u32>,
+    },
 }
 
 /// Random feature candidates of a node.
 pub fn draw_candidates(rng: &mut ChaCha8Rng, n: usize, max_offset: f32) -> Vec<Feature> {
     (0..n)
         .map(|_| Feature {
-            u: [rng.random_range(-max_offset..=max_offset), rng.random_range(-max_offset..=max_offset)],
-            v: [rng.random_range(-max_offset..=max_offset), rng.random_range(-max_offset..=max_offset)],
+            u: [
+                rng.random_range(-max_offset..=max_offset),
+                rng.random_range(-max_offset..=max_offset),
+            ],
+            v: [
+                rng.random_range(-max_offset..=max_offset),
+                rng.random_range(-max_offset..=max_offset),
+            ],
         })
         .collect()
 }
@@ -151,7 +167,10 @@ enum Stage {
 fn plan_node(ctx: &TrainContext<'_>, tree: usize, id: usize, depth: usize, idx: Vec<u32>) -> Stage {
     let p = ctx.params;
     if depth >= p.max_depth || idx.len() < p.min_samples_split {
-        return Stage::Done(id, Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p)));
+        return Stage::Done(
+            id,
+            Outcome::Leaf(leaf_modes(&idx, ctx.offsets, ctx.rotations, p)),
+        );
     }
     let node_seed = mix(&[p.seed, tree as u64, id as u64]);
     let mut rng = ChaCha8Rng::seed_from_u64(node_seed);
@@ -167,7 +186,14 @@ fn plan_node(ctx: &TrainContext<'_>, tree: usize, id: usize, depth: usize, idx: 
     let feat = |c: usize, j: usize| cands[c].eval(store, &parts[subset[j] as usize]);
     let thr = Thresholds::draw(subset.len(), cands.len(), p.n_thresholds, &feat, node_seed);
     let soa = CandidateSoa::new(&cands);
-    Stage::Score(Plan { id, idx, subset, cands, soa, thr })
+    Stage::Score(Plan {
+        id,
+        idx,
+        subset,
+        cands,
+        soa,
+        thr,
+    })
 }
 
 fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outcome) {
@@ -181,12 +207,21 @@ fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outco
     match best {
         Some(b) if b.gain.is_finite() && b.gain > p.min_gain => {
             let f = cands[b.candidate];
-            let (left, right): (Vec<u32>, Vec<u32>) =
-                idx.iter().partition(|&&i| f.eval(store, &parts[i as usize]) < b.threshold);
+            let (left, right): (Vec<u32>, Vec<u32>) = idx
+                .iter()
+                .partition(|&&i| f.eval(store, &parts[i as usize]) < b.threshold);
             if left.is_empty() || right.is_empty() {
                 return (id, leaf(&idx));
             }
-            (id, Outcome::Split { feature: f, threshold: b.threshold, left, right })
+            (
+                id,
+                Outcome::Split {
+                    feature: f,
+                    threshold: b.threshold,
+                    left,
+                    right,
+                },
+            )
         }
         _ => (id, leaf(&idx)),
     }
@@ -200,8 +235,20 @@ fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outco
 /// per level instead of once per node; (3) every node accumulates its statistics and picks its
 /// split; (4) children get breadth-first ids. Phases 1-3 run in parallel.
 pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
-    let placeholder = Node { feature: Feature { u: [0.0; 2], v: [0.0; 2] }, threshold: 0.0, child: 0, is_leaf: true };
-    let mut t = Tree { nodes: vec![placeholder], leaf_offsets: vec![0], votes: Vec::new() };
+    let placeholder = Node {
+        feature: Feature {
+            u: [0.0; 2],
+            v: [0.0; 2],
+        },
+        threshold: 0.0,
+        child: 0,
+        is_leaf: true,
+    };
+    let mut t = Tree {
+        nodes: vec![placeholder],
+        leaf_offsets: vec![0],
+        votes: Vec::new(),
+    };
     let n_all = ctx.parts.len();
     let nc = ctx.params.n_candidates;
     // Per-part scratch of the current level: plan slot and row in the level's bin matrix.
@@ -209,8 +256,14 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
     let mut row_of = vec![0u32; n_all];
     let mut frontier: Vec<(usize, Vec<u32>)> = vec![(0, bag)];
     let mut depth = 0;
+    let trace = std::env::var_os("ISA_TRACE").is_some();
+    let mut tt = [0f64; 5];
     while !frontier.is_empty() {
-        let stages: Vec<Stage> = frontier.into_par_iter().map(|(id, idx)| plan_node(ctx, tree, id, depth, idx)).collect();
+        let t0 = std::time::Instant::now();
+        let stages: Vec<Stage> = frontier
+            .into_par_iter()
+            .map(|(id, idx)| plan_node(ctx, tree, id, depth, idx))
+            .collect();
         let mut outcomes: Vec<(usize, Outcome)> = Vec::new();
         let mut plans: Vec<Plan> = Vec::new();
         for st in stages {
@@ -219,6 +272,7 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
                 Stage::Score(p) => plans.push(p),
             }
         }
+        let t1 = std::time::Instant::now();
         // (2) the level's scored parts in part order, and their bins.
         let mut scan: Vec<u32> = Vec::new();
         for (s, pl) in plans.iter().enumerate() {
@@ -234,21 +288,25 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
                 }
             }
         }
+        let t2 = std::time::Instant::now();
         let mut bins = vec![0u8; scan.len() * nc];
         {
             let (store, parts, slot_of, plans) = (ctx.store, ctx.parts, &slot_of, &plans);
             const ROWS: usize = 512;
-            bins.par_chunks_mut(ROWS * nc).zip(scan.par_chunks(ROWS)).for_each(|(out, ps)| {
-                for (row, &p) in out.chunks_exact_mut(nc).zip(ps) {
-                    let pl = &plans[slot_of[p as usize] as usize];
-                    let g = PartGeom::new(store, &parts[p as usize]);
-                    bins_row(&pl.thr, &pl.soa, &pl.cands, &g, row);
-                }
-            });
+            bins.par_chunks_mut(ROWS * nc)
+                .zip(scan.par_chunks(ROWS))
+                .for_each(|(out, ps)| {
+                    for (row, &p) in out.chunks_exact_mut(nc).zip(ps) {
+                        let pl = &plans[slot_of[p as usize] as usize];
+                        let g = PartGeom::new(store, &parts[p as usize]);
+                        bins_row(&pl.thr, &pl.soa, &pl.cands, &g, row);
+                    }
+                });
         }
         for &p in &scan {
             slot_of[p as usize] = u32::MAX;
         }
+        let t3 = std::time::Instant::now();
         // (3) score every node on its rows.
         let (bins, row_of) = (&bins, &row_of);
         let scored: Vec<(usize, Outcome)> = plans
@@ -262,6 +320,7 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
                 finish_node(ctx, pl, &local)
             })
             .collect();
+        let t4 = std::time::Instant::now();
         outcomes.extend(scored);
         outcomes.sort_by_key(|o| o.0);
         // (4) assemble in node-id order (breadth-first ids).
@@ -272,20 +331,45 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
                     let leaf = t.n_leaves() as u32;
                     t.votes.extend_from_slice(&votes);
                     t.leaf_offsets.push(t.votes.len() as u32);
-                    t.nodes[id] = Node { child: leaf, ..placeholder };
+                    t.nodes[id] = Node {
+                        child: leaf,
+                        ..placeholder
+                    };
                 }
-                Outcome::Split { feature, threshold, left, right } => {
+                Outcome::Split {
+                    feature,
+                    threshold,
+                    left,
+                    right,
+                } => {
                     let child = t.nodes.len();
                     t.nodes.push(placeholder);
                     t.nodes.push(placeholder);
-                    t.nodes[id] = Node { feature, threshold, child: child as u32, is_leaf: false };
+                    t.nodes[id] = Node {
+                        feature,
+                        threshold,
+                        child: child as u32,
+                        is_leaf: false,
+                    };
                     next.push((child, left));
                     next.push((child + 1, right));
                 }
             }
         }
         frontier = next;
+        let t5 = std::time::Instant::now();
+        tt[0] += (t1 - t0).as_secs_f64();
+        tt[1] += (t2 - t1).as_secs_f64();
+        tt[2] += (t3 - t2).as_secs_f64();
+        tt[3] += (t4 - t3).as_secs_f64();
+        tt[4] += (t5 - t4).as_secs_f64();
         depth += 1;
+    }
+    if trace {
+        eprintln!(
+            "tree {tree}: plan {:.2} scan {:.2} bins {:.2} score {:.2} assemble {:.2}",
+            tt[0], tt[1], tt[2], tt[3], tt[4]
+        );
     }
     t
 }
@@ -305,8 +389,20 @@ pub fn quat_angle_ref(q: &[f32]) -> [f32; 4] {
 /// Angle (radians) between two unit quaternions' rotations.
 #[inline]
 pub fn quat_angle(a: &[f32; 4], b: &[f32; 4]) -> f32 {
-    let dot = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]).abs().min(1.0);
+    let dot = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3])
+        .abs()
+        .min(1.0);
     2.0 * dot.acos()
+}
+
+/// `8 (1 − |q_a · q_b|)`: the squared rotation angle to second order (exact as the angle goes to
+/// 0, 8/π² ≈ 0.81 of it at 180°), without a transcendental function.
+#[inline]
+pub fn quat_angle_sq_approx(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let dot = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3])
+        .abs()
+        .min(1.0);
+    8.0 * (1.0 - dot)
 }
 
 /// Compresses the votes of the parts `idx` into at most `leaf_modes` weighted modes.
@@ -316,20 +412,37 @@ pub fn leaf_modes(idx: &[u32], offsets: &[f32], rotations: &[f32], p: &ForestPar
     }
     let n = idx.len().min(p.leaf_max_points);
     let pts: Vec<usize> = (0..n).map(|i| idx[i * idx.len() / n] as usize).collect();
-    let off: Vec<[f32; 3]> = pts.iter().map(|&k| [offsets[3 * k], offsets[3 * k + 1], offsets[3 * k + 2]]).collect();
-    let q: Vec<[f32; 4]> = pts.iter().map(|&k| quat_norm(&rotations[4 * k..4 * k + 4])).collect();
-    let (ihx2, iht2) = (1.0 / (p.vote_bandwidth_offset * p.vote_bandwidth_offset), 1.0 / (p.vote_bandwidth_rotation * p.vote_bandwidth_rotation));
+    let off: Vec<[f32; 3]> = pts
+        .iter()
+        .map(|&k| [offsets[3 * k], offsets[3 * k + 1], offsets[3 * k + 2]])
+        .collect();
+    let q: Vec<[f32; 4]> = pts
+        .iter()
+        .map(|&k| quat_norm(&rotations[4 * k..4 * k + 4]))
+        .collect();
+    let (ihx2, iht2) = (
+        1.0 / (p.vote_bandwidth_offset * p.vote_bandwidth_offset),
+        1.0 / (p.vote_bandwidth_rotation * p.vote_bandwidth_rotation),
+    );
     let mut d2 = vec![0f32; n * n];
     for i in 0..n {
         for j in i + 1..n {
-            let dx = (off[i][0] - off[j][0]).powi(2) + (off[i][1] - off[j][1]).powi(2) + (off[i][2] - off[j][2]).powi(2);
-            let a = quat_angle(&q[i], &q[j]);
-            let v = dx * ihx2 + a * a * iht2;
+            let dx = (off[i][0] - off[j][0]).powi(2)
+                + (off[i][1] - off[j][1]).powi(2)
+                + (off[i][2] - off[j][2]).powi(2);
+            let v = dx * ihx2 + quat_angle_sq_approx(&q[i], &q[j]) * iht2;
             d2[i * n + j] = v;
             d2[j * n + i] = v;
         }
     }
-    let dens: Vec<f32> = (0..n).map(|i| d2[i * n..(i + 1) * n].iter().map(|&v| (-0.5 * v).exp()).sum()).collect();
+    let dens: Vec<f32> = (0..n)
+        .map(|i| {
+            d2[i * n..(i + 1) * n]
+                .iter()
+                .map(|&v| (-0.5 * v).exp())
+                .sum()
+        })
+        .collect();
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| dens[b].total_cmp(&dens[a]).then(a.cmp(&b)));
     let mut assigned = vec![false; n];
@@ -351,18 +464,30 @@ pub fn leaf_modes(idx: &[u32], offsets: &[f32], rotations: &[f32], p: &ForestPar
                 for k in 0..3 {
                     so[k] += off[j][k] as f64;
                 }
-                let sgn = if q[j].iter().zip(&q[c]).map(|(a, b)| a * b).sum::<f32>() < 0.0 { -1.0 } else { 1.0 };
+                let sgn = if q[j].iter().zip(&q[c]).map(|(a, b)| a * b).sum::<f32>() < 0.0 {
+                    -1.0
+                } else {
+                    1.0
+                };
                 for k in 0..4 {
                     sq[k] += sgn * q[j][k] as f64;
                 }
             }
         }
         let qn = (sq.iter().map(|v| v * v).sum::<f64>()).sqrt();
-        let rq = if qn > 1e-12 { [sq[0] / qn, sq[1] / qn, sq[2] / qn, sq[3] / qn] } else { [1.0, 0.0, 0.0, 0.0] };
+        let rq = if qn > 1e-12 {
+            [sq[0] / qn, sq[1] / qn, sq[2] / qn, sq[3] / qn]
+        } else {
+            [1.0, 0.0, 0.0, 0.0]
+        };
         let rq = quat_norm(&[rq[0] as f32, rq[1] as f32, rq[2] as f32, rq[3] as f32]);
         votes.push(Vote {
             weight: cnt as f32 / n as f32,
-            offset: [(so[0] / cnt as f64) as f32, (so[1] / cnt as f64) as f32, (so[2] / cnt as f64) as f32],
+            offset: [
+                (so[0] / cnt as f64) as f32,
+                (so[1] / cnt as f64) as f32,
+                (so[2] / cnt as f64) as f32,
+            ],
             rotation: rq,
         });
     }

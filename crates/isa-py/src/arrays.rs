@@ -13,13 +13,28 @@ use crate::errors::input_err;
 /// "float64 array of shape (10, 3)" or the Python type name.
 pub fn describe(obj: &Bound<'_, PyAny>) -> String {
     if let Ok(a) = obj.cast::<PyUntypedArray>() {
-        let dt = a.dtype().str().map(|s| s.to_string()).unwrap_or_else(|_| "?".into());
-        let contig = if a.is_c_contiguous() { "" } else { " (not C-contiguous)" };
+        let dt = a
+            .dtype()
+            .str()
+            .map(|s| s.to_string())
+            .unwrap_or_else(|_| "?".into());
+        let contig = if a.is_c_contiguous() {
+            ""
+        } else {
+            " (not C-contiguous)"
+        };
         let dims: Vec<String> = a.shape().iter().map(|d| d.to_string()).collect();
-        let tuple = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+        let tuple = if dims.len() == 1 {
+            format!("({},)", dims[0])
+        } else {
+            format!("({})", dims.join(", "))
+        };
         format!("{dt} array of shape {tuple}{contig}")
     } else {
-        obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into())
+        obj.get_type()
+            .name()
+            .map(|n| n.to_string())
+            .unwrap_or_else(|_| "?".into())
     }
 }
 
@@ -32,15 +47,26 @@ pub fn array<'py, T: Element>(
     shape: &[Option<usize>],
 ) -> PyResult<PyReadonlyArrayDyn<'py, T>> {
     let expect = {
-        let dims: Vec<String> = shape.iter().map(|d| d.map_or("n".into(), |v| v.to_string())).collect();
+        let dims: Vec<String> = shape
+            .iter()
+            .map(|d| d.map_or("n".into(), |v| v.to_string()))
+            .collect();
         format!("a C-contiguous {want} array of shape ({})", dims.join(", "))
     };
     let arr = obj
         .cast::<PyArrayDyn<T>>()
         .map_err(|_| input_err(format!("{name}: expected {expect}, got {} (convert with np.ascontiguousarray({name}, dtype=np.{want}))", describe(obj))))?;
     let sh = arr.shape();
-    if sh.len() != shape.len() || sh.iter().zip(shape).any(|(s, w)| w.is_some_and(|w| w != *s)) {
-        return Err(input_err(format!("{name}: expected {expect}, got {}", describe(obj))));
+    if sh.len() != shape.len()
+        || sh
+            .iter()
+            .zip(shape)
+            .any(|(s, w)| w.is_some_and(|w| w != *s))
+    {
+        return Err(input_err(format!(
+            "{name}: expected {expect}, got {}",
+            describe(obj)
+        )));
     }
     if !arr.is_c_contiguous() {
         return Err(input_err(format!(
@@ -54,21 +80,36 @@ pub fn array<'py, T: Element>(
 pub fn check_finite(a: &[f32], name: &str, cols: usize) -> PyResult<()> {
     if let Some(k) = a.iter().position(|v| !v.is_finite()) {
         let cols = cols.max(1);
-        return Err(input_err(format!("{name}[{}, {}] is not finite ({})", k / cols, k % cols, a[k])));
+        return Err(input_err(format!(
+            "{name}[{}, {}] is not finite ({})",
+            k / cols,
+            k % cols,
+            a[k]
+        )));
     }
     Ok(())
 }
 
 /// Copies a list of uint16 2D C-contiguous depth images (mm, 0 = missing) into a store.
 pub fn depth_store(images: &Bound<'_, PyAny>) -> PyResult<DepthStore> {
-    let list = images
-        .cast::<PyList>()
-        .map_err(|_| input_err(format!("images: expected a list of uint16 2D arrays, got {}", describe(images))))?;
+    let list = images.cast::<PyList>().map_err(|_| {
+        input_err(format!(
+            "images: expected a list of uint16 2D arrays, got {}",
+            describe(images)
+        ))
+    })?;
     let mut store = DepthStore::new();
     for (i, img) in list.iter().enumerate() {
         let a = array::<u16>(&img, &format!("images[{i}]"), "uint16", &[None, None])?;
         let sh = a.shape().to_vec();
-        store.push(sh[1], sh[0], a.as_slice().map_err(|e| input_err(format!("images[{i}]: {e}")))?).map_err(crate::errors::to_py)?;
+        store
+            .push(
+                sh[1],
+                sh[0],
+                a.as_slice()
+                    .map_err(|e| input_err(format!("images[{i}]: {e}")))?,
+            )
+            .map_err(crate::errors::to_py)?;
     }
     Ok(store)
 }

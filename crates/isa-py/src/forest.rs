@@ -24,7 +24,9 @@ pub fn params_from_kwargs(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Forest
             if !obj.contains_key(&key) {
                 let mut names: Vec<&String> = obj.keys().collect();
                 names.sort();
-                return Err(param_err(format!("unknown forest parameter {key:?}; known: {names:?}")));
+                return Err(param_err(format!(
+                    "unknown forest parameter {key:?}; known: {names:?}"
+                )));
             }
             let j = if val.is_instance_of::<pyo3::types::PyBool>() {
                 serde_json::Value::Bool(val.extract()?)
@@ -36,12 +38,20 @@ pub fn params_from_kwargs(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Forest
                     .ok_or_else(|| param_err(format!("{key} must be finite, got {f}")))?
             } else if let Ok(s) = val.extract::<String>() {
                 if key == "quality" {
-                    serde_json::Value::String(isa_core::Quality::parse(&s).map_err(to_py)?.as_str().to_string())
+                    serde_json::Value::String(
+                        isa_core::Quality::parse(&s)
+                            .map_err(to_py)?
+                            .as_str()
+                            .to_string(),
+                    )
                 } else {
                     serde_json::Value::String(s)
                 }
             } else {
-                return Err(param_err(format!("{key}: unsupported value {}", crate::arrays::describe(&val))));
+                return Err(param_err(format!(
+                    "{key}: unsupported value {}",
+                    crate::arrays::describe(&val)
+                )));
             };
             obj.insert(key, j);
         }
@@ -52,10 +62,19 @@ pub fn params_from_kwargs(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Forest
     Ok(p)
 }
 
-fn f32_arr<'py>(obj: &Bound<'py, PyAny>, name: &str, shape: &[Option<usize>]) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+fn f32_arr<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    shape: &[Option<usize>],
+) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
     let a = array::<f32>(obj, name, "float32", shape)?;
     let cols = a.shape().get(1).copied().unwrap_or(1);
-    check_finite(a.as_slice().map_err(|e| input_err(format!("{name}: {e}")))?, name, cols)?;
+    check_finite(
+        a.as_slice()
+            .map_err(|e| input_err(format!("{name}: {e}")))?,
+        name,
+        cols,
+    )?;
     Ok(a)
 }
 
@@ -74,10 +93,16 @@ pub struct PyForest {
 
 impl PyForest {
     fn fitted(&self) -> PyResult<&Forest> {
-        self.forest.as_ref().ok_or_else(|| input_err("this Forest is not fitted: call fit() or Forest.load()"))
+        self.forest
+            .as_ref()
+            .ok_or_else(|| input_err("this Forest is not fitted: call fit() or Forest.load()"))
     }
     pub fn from_core(f: Forest) -> Self {
-        PyForest { params: f.params.clone(), forest: Some(f), n_threads: None }
+        PyForest {
+            params: f.params.clone(),
+            forest: Some(f),
+            n_threads: None,
+        }
     }
     /// The trained core forest (for other bindings, e.g. prediction).
     pub fn core(&self) -> PyResult<&Forest> {
@@ -93,9 +118,15 @@ impl PyForest {
     #[pyo3(signature = (*, n_threads=None, **params))]
     fn new(n_threads: Option<usize>, params: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
         if n_threads == Some(0) {
-            return Err(param_err("n_threads must be at least 1 (or None for all cores)"));
+            return Err(param_err(
+                "n_threads must be at least 1 (or None for all cores)",
+            ));
         }
-        Ok(PyForest { params: params_from_kwargs(params)?, forest: None, n_threads })
+        Ok(PyForest {
+            params: params_from_kwargs(params)?,
+            forest: None,
+            n_threads,
+        })
     }
 
     /// Trains the forest (the GIL is released while training).
@@ -117,8 +148,14 @@ impl PyForest {
         let n = parts.len();
         let off = f32_arr(offsets, "offsets", &[Some(n), Some(3)])?;
         let rot = f32_arr(rotations, "rotations", &[Some(n), Some(4)])?;
-        let la = link_angles.filter(|o| !o.is_none()).map(|o| f32_arr(o, "link_angles", &[Some(n), None])).transpose()?;
-        let no = node_offsets.filter(|o| !o.is_none()).map(|o| f32_arr(o, "node_offsets", &[Some(n), None])).transpose()?;
+        let la = link_angles
+            .filter(|o| !o.is_none())
+            .map(|o| f32_arr(o, "link_angles", &[Some(n), None]))
+            .transpose()?;
+        let no = node_offsets
+            .filter(|o| !o.is_none())
+            .map(|o| f32_arr(o, "node_offsets", &[Some(n), None]))
+            .transpose()?;
         let raw = RawTargets {
             offsets: slice(&off),
             rotations: slice(&rot),
@@ -128,7 +165,11 @@ impl PyForest {
         let params = self.params.clone();
         let threads = self.n_threads;
         let forest = py.detach(|| {
-            let data = TrainingSet { store: &store, parts: &parts, targets: raw };
+            let data = TrainingSet {
+                store: &store,
+                parts: &parts,
+                targets: raw,
+            };
             Forest::fit(&params, &data, metadata, threads)
         });
         self.forest = Some(forest.map_err(to_py)?);
@@ -146,7 +187,10 @@ impl PyForest {
     #[pyo3(signature = (path, *, n_threads=None))]
     fn load(py: Python<'_>, path: PathBuf, n_threads: Option<usize>) -> PyResult<Self> {
         let f = py.detach(|| Forest::load(&path)).map_err(to_py)?;
-        Ok(PyForest { n_threads, ..PyForest::from_core(f) })
+        Ok(PyForest {
+            n_threads,
+            ..PyForest::from_core(f)
+        })
     }
 
     /// The model-file bytes.
@@ -156,7 +200,9 @@ impl PyForest {
 
     #[staticmethod]
     fn from_bytes(data: &[u8]) -> PyResult<Self> {
-        Ok(PyForest::from_core(Forest::from_bytes(data).map_err(to_py)?))
+        Ok(PyForest::from_core(
+            Forest::from_bytes(data).map_err(to_py)?,
+        ))
     }
 
     fn __getstate__<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
@@ -172,7 +218,8 @@ impl PyForest {
 
     fn __setstate__(&mut self, state: &[u8]) -> PyResult<()> {
         if let Some(rest) = state.strip_prefix(STATE_UNFITTED) {
-            let s = std::str::from_utf8(rest).map_err(|_| input_err("pickled Forest state is not UTF-8"))?;
+            let s = std::str::from_utf8(rest)
+                .map_err(|_| input_err("pickled Forest state is not UTF-8"))?;
             self.params = ForestParams::from_json(s).map_err(to_py)?;
             self.forest = None;
         } else {
@@ -184,7 +231,12 @@ impl PyForest {
     }
 
     /// Leaf index of every part in every tree: (P, n_trees) int32.
-    fn apply<'py>(&self, py: Python<'py>, images: &Bound<'py, PyAny>, parts: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray2<i32>>> {
+    fn apply<'py>(
+        &self,
+        py: Python<'py>,
+        images: &Bound<'py, PyAny>,
+        parts: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<i32>>> {
         let f = self.fitted()?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
@@ -195,13 +247,20 @@ impl PyForest {
             .map_err(to_py)?;
         let t = f.n_trees();
         let v: Vec<i32> = leaves.into_iter().map(|x| x as i32).collect();
-        Ok(Array2::from_shape_vec((parts.len(), t), v).expect("shape").into_pyarray(py))
+        Ok(Array2::from_shape_vec((parts.len(), t), v)
+            .expect("shape")
+            .into_pyarray(py))
     }
 
     /// Every vote of every part through every tree, as a dict of flat arrays (V = number of
     /// votes): part (V,) int32, tree (V,) int32, weight (V,) float32, offset (V, 3) float32,
     /// rotation (V, 4) float32 (w, x, y, z). Ordered by part, tree, decreasing weight.
-    fn votes<'py>(&self, py: Python<'py>, images: &Bound<'py, PyAny>, parts: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+    fn votes<'py>(
+        &self,
+        py: Python<'py>,
+        images: &Bound<'py, PyAny>,
+        parts: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyDict>> {
         let f = self.fitted()?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
@@ -212,13 +271,32 @@ impl PyForest {
             .map_err(to_py)?;
         let n = votes.len();
         let d = PyDict::new(py);
-        d.set_item("part", PyArray1::from_vec(py, votes.iter().map(|v| v.part as i32).collect()))?;
-        d.set_item("tree", PyArray1::from_vec(py, votes.iter().map(|v| v.tree as i32).collect()))?;
-        d.set_item("weight", PyArray1::from_vec(py, votes.iter().map(|v| v.vote.weight).collect()))?;
+        d.set_item(
+            "part",
+            PyArray1::from_vec(py, votes.iter().map(|v| v.part as i32).collect()),
+        )?;
+        d.set_item(
+            "tree",
+            PyArray1::from_vec(py, votes.iter().map(|v| v.tree as i32).collect()),
+        )?;
+        d.set_item(
+            "weight",
+            PyArray1::from_vec(py, votes.iter().map(|v| v.vote.weight).collect()),
+        )?;
         let off: Vec<f32> = votes.iter().flat_map(|v| v.vote.offset).collect();
         let rot: Vec<f32> = votes.iter().flat_map(|v| v.vote.rotation).collect();
-        d.set_item("offset", Array2::from_shape_vec((n, 3), off).expect("shape").into_pyarray(py))?;
-        d.set_item("rotation", Array2::from_shape_vec((n, 4), rot).expect("shape").into_pyarray(py))?;
+        d.set_item(
+            "offset",
+            Array2::from_shape_vec((n, 3), off)
+                .expect("shape")
+                .into_pyarray(py),
+        )?;
+        d.set_item(
+            "rotation",
+            Array2::from_shape_vec((n, 4), rot)
+                .expect("shape")
+                .into_pyarray(py),
+        )?;
         Ok(d)
     }
 
@@ -229,7 +307,11 @@ impl PyForest {
         py: Python<'py>,
         tree: usize,
         leaf: usize,
-    ) -> PyResult<(Bound<'py, PyArray1<f32>>, Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>)> {
+    ) -> PyResult<(
+        Bound<'py, PyArray1<f32>>,
+        Bound<'py, PyArray2<f32>>,
+        Bound<'py, PyArray2<f32>>,
+    )> {
         let f = self.fitted()?;
         if tree >= f.n_trees() || leaf >= f.trees[tree].n_leaves() {
             return Err(input_err(format!("no leaf {leaf} in tree {tree}")));
@@ -240,8 +322,12 @@ impl PyForest {
         let r: Vec<f32> = v.iter().flat_map(|x| x.rotation).collect();
         Ok((
             PyArray1::from_vec(py, w),
-            Array2::from_shape_vec((v.len(), 3), o).expect("shape").into_pyarray(py),
-            Array2::from_shape_vec((v.len(), 4), r).expect("shape").into_pyarray(py),
+            Array2::from_shape_vec((v.len(), 3), o)
+                .expect("shape")
+                .into_pyarray(py),
+            Array2::from_shape_vec((v.len(), 4), r)
+                .expect("shape")
+                .into_pyarray(py),
         ))
     }
 
@@ -260,7 +346,9 @@ impl PyForest {
     }
     #[getter]
     fn n_trees(&self) -> usize {
-        self.forest.as_ref().map_or(self.params.n_trees, |f| f.n_trees())
+        self.forest
+            .as_ref()
+            .map_or(self.params.n_trees, |f| f.n_trees())
     }
     #[getter]
     fn n_threads(&self) -> Option<usize> {
@@ -269,7 +357,9 @@ impl PyForest {
     #[setter]
     fn set_n_threads(&mut self, n: Option<usize>) -> PyResult<()> {
         if n == Some(0) {
-            return Err(param_err("n_threads must be at least 1 (or None for all cores)"));
+            return Err(param_err(
+                "n_threads must be at least 1 (or None for all cores)",
+            ));
         }
         self.n_threads = n;
         Ok(())
@@ -299,9 +389,17 @@ impl PyForest {
         match &self.forest {
             Some(f) => {
                 let (n, l) = f.size();
-                format!("Forest(n_trees={}, quality={:?}, nodes={n}, leaves={l})", f.n_trees(), f.params.quality.as_str())
+                format!(
+                    "Forest(n_trees={}, quality={:?}, nodes={n}, leaves={l})",
+                    f.n_trees(),
+                    f.params.quality.as_str()
+                )
             }
-            None => format!("Forest(unfitted, n_trees={}, quality={:?})", self.params.n_trees, self.params.quality.as_str()),
+            None => format!(
+                "Forest(unfitted, n_trees={}, quality={:?})",
+                self.params.n_trees,
+                self.params.quality.as_str()
+            ),
         }
     }
 }

@@ -14,10 +14,20 @@ use isa_core::{Feature, Quality};
 use crate::arrays::{array, check_finite, depth_store, parts as parts_arg};
 use crate::errors::{input_err, param_err, to_py};
 
-fn f32_2d<'py>(obj: &Bound<'py, PyAny>, name: &str, rows: Option<usize>, cols: Option<usize>) -> PyResult<numpy::PyReadonlyArrayDyn<'py, f32>> {
+fn f32_2d<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    rows: Option<usize>,
+    cols: Option<usize>,
+) -> PyResult<numpy::PyReadonlyArrayDyn<'py, f32>> {
     let a = array::<f32>(obj, name, "float32", &[rows, cols])?;
     let c = a.shape()[1];
-    check_finite(a.as_slice().map_err(|e| input_err(format!("{name}: {e}")))?, name, c)?;
+    check_finite(
+        a.as_slice()
+            .map_err(|e| input_err(format!("{name}: {e}")))?,
+        name,
+        c,
+    )?;
     Ok(a)
 }
 
@@ -37,10 +47,14 @@ pub fn sample_parts<'py>(
     seed: u64,
 ) -> PyResult<Bound<'py, PyArray2<i32>>> {
     let store = depth_store(images)?;
-    let parts = py.detach(|| isa_core::sample_parts(&store, stride, max_per_image, seed)).map_err(to_py)?;
+    let parts = py
+        .detach(|| isa_core::sample_parts(&store, stride, max_per_image, seed))
+        .map_err(to_py)?;
     let n = parts.len();
     let flat: Vec<i32> = parts.into_iter().flatten().collect();
-    Ok(Array2::from_shape_vec((n, 3), flat).expect("shape").into_pyarray(py))
+    Ok(Array2::from_shape_vec((n, 3), flat)
+        .expect("shape")
+        .into_pyarray(py))
 }
 
 /// Eq. 5 features of every part for every candidate `(u[c], v[c])` (pixel·metres): (P, C) float32 mm.
@@ -59,9 +73,16 @@ pub fn depth_features<'py>(
     let c = ua.shape()[0];
     let va = f32_2d(v, "v", Some(c), Some(2))?;
     let (us, vs) = (ua.as_slice()?, va.as_slice()?);
-    let feats: Vec<Feature> = (0..c).map(|k| Feature { u: [us[2 * k], us[2 * k + 1]], v: [vs[2 * k], vs[2 * k + 1]] }).collect();
+    let feats: Vec<Feature> = (0..c)
+        .map(|k| Feature {
+            u: [us[2 * k], us[2 * k + 1]],
+            v: [vs[2 * k], vs[2 * k + 1]],
+        })
+        .collect();
     let out = py.detach(|| isa_core::features::eval_matrix(&store, &parts, &feats));
-    Ok(Array2::from_shape_vec((parts.len(), c), out).expect("shape").into_pyarray(py))
+    Ok(Array2::from_shape_vec((parts.len(), c), out)
+        .expect("shape")
+        .into_pyarray(py))
 }
 
 struct Raw<'py> {
@@ -82,8 +103,12 @@ impl<'py> Raw<'py> {
         let n = off.shape()[0];
         Ok(Raw {
             rot: f32_2d(rotations, "rotations", Some(n), Some(4))?,
-            la: opt(link_angles).map(|o| f32_2d(o, "link_angles", Some(n), None)).transpose()?,
-            no: opt(node_offsets).map(|o| f32_2d(o, "node_offsets", Some(n), None)).transpose()?,
+            la: opt(link_angles)
+                .map(|o| f32_2d(o, "link_angles", Some(n), None))
+                .transpose()?,
+            no: opt(node_offsets)
+                .map(|o| f32_2d(o, "node_offsets", Some(n), None))
+                .transpose()?,
             off,
         })
     }
@@ -91,8 +116,14 @@ impl<'py> Raw<'py> {
         RawTargets {
             offsets: self.off.as_slice().expect("contiguous"),
             rotations: self.rot.as_slice().expect("contiguous"),
-            link_angles: self.la.as_ref().map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
-            node_offsets: self.no.as_ref().map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
+            link_angles: self
+                .la
+                .as_ref()
+                .map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
+            node_offsets: self
+                .no
+                .as_ref()
+                .map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
         }
     }
 }
@@ -149,7 +180,12 @@ pub fn criterion_targets<'py>(
     };
     let t = build_targets(&r.raw(), q, reduce_dims).map_err(to_py)?;
     let dims = t.layout.blocks.iter().map(|b| b.dim).collect();
-    Ok((Array2::from_shape_vec((t.n, t.layout.dim), t.data).expect("shape").into_pyarray(py), dims))
+    Ok((
+        Array2::from_shape_vec((t.n, t.layout.dim), t.data)
+            .expect("shape")
+            .into_pyarray(py),
+        dims,
+    ))
 }
 
 /// Benchmark hook: the forest's split search on precomputed features (P, C) float32 (candidate
@@ -189,7 +225,11 @@ pub fn split_search<'py>(
             let t = build_targets(&raw, q, reduce_dims)?;
             let crit = Criterion::new(t.layout.clone(), reg);
             let subset: Vec<u32> = (0..n as u32).collect();
-            let cfg = SplitConfig { n_thresholds, min_samples_leaf, parallel: true };
+            let cfg = SplitConfig {
+                n_thresholds,
+                min_samples_leaf,
+                parallel: true,
+            };
             // Candidate-major copy so each candidate's column is contiguous (as the forest's
             // on-the-fly features are); not timed.
             let mut cm = vec![0f32; n * c];
