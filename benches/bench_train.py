@@ -27,8 +27,9 @@ max_features=100) on the same parts with 100 precomputed features and the 76-dim
 
 Usage::
 
-    python benches/bench_train.py [--parts 100000] [--candidates 100] [--reduce-dims 8]
+    python benches/bench_train.py [--parts 100000] [--candidates 100] [--reduce-dims 4]
     python benches/bench_train.py --paper-scale [--parts 1000000] [--skip-sklearn]
+    python benches/bench_train.py --reduction-effect
 """
 
 from __future__ import annotations
@@ -49,10 +50,23 @@ N_LINKS, N_NODES, K = 18, 11, 16
 
 
 # ------------------------------------------------------------------ synthetic data ----------
+_SK = np.random.default_rng(12345)
+#: A few instance skeletons of N_NODES nodes (object frame, metres) and N_LINKS links.
+SKELETONS = [_SK.normal(0.0, 0.3, (N_NODES, 3)) for _ in range(8)]
+LINKS = np.array([(i, i + 1) for i in range(N_NODES - 1)] + [tuple(_SK.choice(N_NODES, 2, replace=False)) for _ in range(N_LINKS - N_NODES + 1)])
+
+
+def quat_to_matrix(q):
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
 def synthetic_crops(n_images: int, rng: np.random.Generator, f: float = 525.0):
     """Foreground-only depth crops of box-assembly "objects" (uint16 mm) with per-image views,
     and per-part targets following the data contract (offsets to an object centre, the view's
-    rotation, link angles of a random skeleton projection, node offsets)."""
+    rotation, link angles and node positions of an instance skeleton projected in this view)."""
     images, meta = [], []
     for _ in range(n_images):
         h, w = rng.integers(70, 110, 2)
@@ -65,10 +79,15 @@ def synthetic_crops(n_images: int, rng: np.random.Generator, f: float = 525.0):
             d = base + rng.uniform(-200, 200) + rng.uniform(-3, 3) * (yy - y0) + rng.uniform(-3, 3) * (xx - x0)
             cur = img[y0:y1, x0:x1]
             img[y0:y1, x0:x1] = np.where((cur == 0) | (d < cur), d, cur).astype(np.uint16)
+        # Skeleton targets as the data pipeline makes them: one of a few instance skeletons
+        # (object frame, metres) seen from this view, projected with a pinhole camera.
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
-        nodes = np.stack([rng.uniform(0, w, N_NODES), rng.uniform(0, h, N_NODES), base / 1000 + rng.uniform(-0.3, 0.3, N_NODES)], 1)
-        links = rng.uniform(-np.pi, np.pi, N_LINKS)
+        skel = SKELETONS[rng.integers(len(SKELETONS))]
+        cam = skel @ quat_to_matrix(q).T + [0.0, 0.0, base / 1000]
+        nodes = np.stack([f * cam[:, 0] / cam[:, 2] + w / 2, f * cam[:, 1] / cam[:, 2] + h / 2, cam[:, 2]], 1)
+        dv = nodes[LINKS[:, 1]] - nodes[LINKS[:, 0]]
+        links = np.arctan2(dv[:, 1], dv[:, 0])
         images.append(img)
         meta.append((q, nodes, links, (w / 2, h / 2, base / 1000 + 0.2)))
     return images, meta
@@ -306,10 +325,10 @@ from isa import _core
 d = np.load(sys.argv[1], allow_pickle=True)
 images = list(d["images"])
 f = _core.Forest(**json.loads(sys.argv[2]))
-t0 = time.perf_counter()
+t0 = time.perf_counter(); c0 = time.process_time()
 f.fit(images, d["parts"], d["off"], d["rot"], d["la"], d["no"], "{}")
 t = time.perf_counter() - t0
-print(json.dumps({"seconds": t, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+print(json.dumps({"seconds": t, "cpu_seconds": time.process_time() - c0, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "nodes": sum(f.n_nodes), "depths": f.depths}))
 """
 
@@ -333,7 +352,7 @@ def bench_paper_scale(args):
         out = subprocess.run([sys.executable, "-c", TRAIN_CHILD, path, json.dumps(params)], check=True,
                              capture_output=True, text=True)
         res = json.loads(out.stdout.strip().splitlines()[-1])
-    print(f"rust forest {params}:\n  {res['seconds']:.1f} s wall, peak RSS {res['peak_rss_mb']:.0f} MB "
+    print(f"rust forest {params}:\n  {res['seconds']:.1f} s wall ({res['cpu_seconds']:.0f} s CPU), peak RSS {res['peak_rss_mb']:.0f} MB "
           f"(child process incl. its copy of the data), {res['nodes']} nodes, depths {res['depths']}")
     if args.skip_sklearn:
         return
@@ -351,16 +370,64 @@ def bench_paper_scale(args):
     print(f"ratio sklearn / rust time: {t_sk / res['seconds']:.2f}x")
 
 
+def bench_reduction_effect(args):
+    """Effect of ``reduce_dims`` on the split the criterion picks: on nodes made of the parts of
+    random sets of crops, the Q1+Q2+Q3 split chosen with k principal components is scored with
+    the full-dimension criterion and compared with the full-dimension best (same candidates and
+    thresholds: the threshold streams do not depend on k)."""
+    rng = np.random.default_rng(args.seed)
+    images, meta, parts = make_parts(args.parts, rng)
+    off, rot, la, no = targets_for(parts, images, meta)
+    ks = [2, 4, 6, 8, 12, 0]
+    ratios = {k: [] for k in ks}
+    q1 = {k: [] for k in ks}
+    same = {k: 0 for k in ks}
+    times = {k: 0.0 for k in ks}
+    trials = 8
+    for t in range(trials):
+        imgs = rng.choice(len(images), size=min(len(images), 60), replace=False)
+        sel = np.isin(parts[:, 0], imgs)
+        p = np.ascontiguousarray(parts[sel])
+        u, v = random_features(rng, args.candidates)
+        feats = _core.depth_features(images, p, u, v)
+        a, b, c, d = (np.ascontiguousarray(x[sel]) for x in (off, rot, la, no))
+        full = None
+        res = {}
+        for k in ks:
+            r = _core.split_search(feats, a, b, c, d, quality="Q1+Q2+Q3", reduce_dims=k, min_samples_leaf=5, seed=t)
+            times[k] += r["seconds"]
+            mask = feats[:, r["candidate"]] < r["threshold"]
+            g = _core.criterion_gains(a, b, c, d, mask, reduce_dims=0)
+            res[k] = (r["candidate"], r["threshold"], g["Q1"] + g["Q2"] + g["Q3"], g["Q1"])
+        full = res[0]
+        for k in ks:
+            ratios[k].append(res[k][2] / full[2])
+            q1[k].append(res[k][3] / max(r[3] for r in res.values()))
+            same[k] += res[k][:2] == full[:2]
+    print(f"reduce_dims effect on the chosen split ({trials} nodes of ~{int(sel.sum())} parts, "
+          f"{args.candidates} candidates x {K} thresholds):")
+    print("columns: full-dimension Q1+Q2+Q3 gain of the chosen split / the best one; its Q1 gain /")
+    print("the largest Q1 gain any k found; splits equal to the full-dimension choice; search time")
+    print(f"{'k':>6s} {'full gain ratio':>22s} {'Q1 gain ratio':>14s} {'same split':>11s} {'search s':>9s}")
+    for k in ks:
+        print(f"{(k or 'full'):>6} {np.mean(ratios[k]):8.3f} (min {np.min(ratios[k]):.3f}) {np.mean(q1[k]):14.3f} {same[k]:7d}/{trials} {times[k]:9.2f}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--parts", type=int, default=None, help="parts (default 100k; 1M with --paper-scale)")
     ap.add_argument("--candidates", type=int, default=100)
-    ap.add_argument("--reduce-dims", type=int, default=8)
+    ap.add_argument("--reduce-dims", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--paper-scale", action="store_true")
     ap.add_argument("--skip-sklearn", action="store_true")
+    ap.add_argument("--reduction-effect", action="store_true",
+                    help="measure how reduce_dims changes the chosen split (vs the full criterion)")
     args = ap.parse_args()
-    if args.paper_scale:
+    if args.reduction_effect:
+        args.parts = args.parts or 200_000
+        bench_reduction_effect(args)
+    elif args.paper_scale:
         args.parts = args.parts or 1_000_000
         bench_paper_scale(args)
     else:

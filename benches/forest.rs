@@ -3,7 +3,7 @@
 //! * `split_search/{Q1,Q1+Q2+Q3}/{10k,100k}`: one node's split search over all its parts with
 //!   100 candidates x 16 thresholds on precomputed (candidate-major) features; the reported
 //!   throughput "elements" are part x candidate evaluations. Q2/Q3 use 18 links and 11 nodes,
-//!   reduced to 8 principal components each (`reduce_dims = 8`, the default); `full` variants
+//!   reduced to 4 principal components each (`reduce_dims = 4`, the default); `full` variants
 //!   keep all 36 + 33 dimensions.
 //! * `traversal/10_trees`: parts per second through a 10-tree forest (depth 20 max) trained on
 //!   synthetic depth images.
@@ -55,8 +55,8 @@ fn split_search(c: &mut Criterion) {
             .map(|_| rng.random_range(-500.0..500.0f32).round())
             .collect();
         for (name, q, reduce) in [
-            ("Q1", Quality::Q1, 8),
-            ("Q1+Q2+Q3", Quality::Q1Q2Q3, 8),
+            ("Q1", Quality::Q1, 4),
+            ("Q1+Q2+Q3", Quality::Q1Q2Q3, 4),
             ("Q1+Q2+Q3_full", Quality::Q1Q2Q3, 0),
         ] {
             if reduce == 0 && n > 10_000 {

@@ -150,7 +150,7 @@ def split_search(
     n_thresholds: int = 16,
     min_samples_leaf: int = 1,
     reg: float = 1e-4,
-    reduce_dims: int = 8,
+    reduce_dims: int = 4,
     seed: int = 0,
     n_threads: int | None = None,
 ) -> dict[str, Any]:

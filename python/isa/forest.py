@@ -72,7 +72,7 @@ class ForestParams:
     max_score_samples: int = 16384
     quality: str = "Q1+Q2+Q3"
     reg: float = 1e-4
-    reduce_dims: int = 8
+    reduce_dims: int = 4
     bag_fraction: float = 1.0
     leaf_modes: int = 4
     leaf_max_points: int = 64

@@ -193,7 +193,7 @@ pub fn criterion_targets<'py>(
 /// candidate, threshold, total gain, term gains and the search time in seconds (excluding the
 /// target preprocessing).
 #[pyfunction]
-#[pyo3(signature = (features, offsets, rotations, link_angles=None, node_offsets=None, *, quality="Q1+Q2+Q3", n_thresholds=16, min_samples_leaf=1, reg=1e-4, reduce_dims=8, seed=0, n_threads=None))]
+#[pyo3(signature = (features, offsets, rotations, link_angles=None, node_offsets=None, *, quality="Q1+Q2+Q3", n_thresholds=16, min_samples_leaf=1, reg=1e-4, reduce_dims=4, seed=0, n_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn split_search<'py>(
     py: Python<'py>,
