@@ -47,7 +47,12 @@ fn synthetic_votes(n: usize, seed: u64) -> Vec<PoseVote> {
                         rng.random_range(-1.5..1.5),
                         rng.random_range(0.5..6.0),
                     ],
-                    rotation: [gauss(&mut rng), gauss(&mut rng), gauss(&mut rng), gauss(&mut rng)],
+                    rotation: [
+                        gauss(&mut rng),
+                        gauss(&mut rng),
+                        gauss(&mut rng),
+                        gauss(&mut rng),
+                    ],
                     weight: 0.1,
                 }
             }
@@ -71,7 +76,11 @@ fn chair_forest() -> Forest {
         let az = i as f64 * std::f64::consts::TAU / 24.0;
         let pose = synth::look_at(az, 0.3 + 0.1 * (i % 3) as f64, 2.5);
         store
-            .push(640, 480, &synth::render(&chair, pose.0, pose.1, &K640, 640, 480))
+            .push(
+                640,
+                480,
+                &synth::render(&chair, pose.0, pose.1, &K640, 640, 480),
+            )
             .unwrap();
         poses.push(pose);
     }
@@ -140,8 +149,21 @@ const CASES: [(&str, usize); 3] = [("chair", 4), ("chair", 2), ("room", 4)];
 /// Trained once, on first use (so filtering to `find_modes/100k` skips the training).
 fn frames() -> &'static Frames {
     FRAMES.get_or_init(|| {
+        // The trained forest is cached in the target directory (training takes a while).
+        let cache =
+            std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("vote-bench-chair-forest-v1.isaf");
+        let forest = match Forest::load(&cache) {
+            Ok(f) => f,
+            Err(_) => {
+                let f = chair_forest();
+                if let Err(e) = f.save(&cache) {
+                    eprintln!("(could not cache the forest: {e})");
+                }
+                f
+            }
+        };
         let f = Frames {
-            forest: chair_forest(),
+            forest,
             chair: frame_depth(false),
             room: frame_depth(true),
         };
@@ -191,14 +213,20 @@ fn cpu_report() {
     if std::env::var("ISA_BENCH_CPU").is_err() {
         return;
     }
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
     let per_call = |name: &str, n: usize, f: &mut dyn FnMut()| {
         f();
         let (c0, t0) = (cpu_seconds(), std::time::Instant::now());
         for _ in 0..n {
             f();
         }
-        let (cpu, wall) = ((cpu_seconds() - c0) / n as f64, t0.elapsed().as_secs_f64() / n as f64);
+        let (cpu, wall) = (
+            (cpu_seconds() - c0) / n as f64,
+            t0.elapsed().as_secs_f64() / n as f64,
+        );
         eprintln!(
             "cpu1 {name:<40} {:8.2} ms CPU/call on 1 thread ({:8.2} ms wall)",
             cpu * 1e3,
@@ -223,15 +251,27 @@ fn cpu_report() {
             store.push(640, 480, f.depth(scene)).unwrap();
             let parts = sample_parts(&store, stride, None, 0).unwrap();
             let n = if scene == "room" { 10 } else { 50 };
-            per_call(&format!("Forest::apply/{scene}_stride{stride}"), n, &mut || {
-                f.forest.apply(&store, &parts).unwrap();
-            });
-            per_call(&format!("image_votes/{scene}_stride{stride}"), n, &mut || {
-                vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
-            });
-            per_call(&format!("find_modes/{scene}_stride{stride}_votes"), n, &mut || {
-                vote::find_modes(&iv.votes, &pp.vote).unwrap();
-            });
+            per_call(
+                &format!("Forest::apply/{scene}_stride{stride}"),
+                n,
+                &mut || {
+                    f.forest.apply(&store, &parts).unwrap();
+                },
+            );
+            per_call(
+                &format!("image_votes/{scene}_stride{stride}"),
+                n,
+                &mut || {
+                    vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
+                },
+            );
+            per_call(
+                &format!("find_modes/{scene}_stride{stride}_votes"),
+                n,
+                &mut || {
+                    vote::find_modes(&iv.votes, &pp.vote).unwrap();
+                },
+            );
             per_call(&format!("predict/{scene}_stride{stride}"), n, &mut || {
                 vote::predict(&f.forest, &img, &K640, &pp).unwrap();
             });
@@ -252,16 +292,22 @@ fn bench(c: &mut Criterion) {
             stride,
             ..Default::default()
         };
-        c.bench_function(&format!("predict/640x480_{scene}_10trees_stride{stride}"), |b| {
-            let f = frames();
-            let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
-            b.iter(|| vote::predict(&f.forest, &img, &K640, &pp).unwrap())
-        });
-        c.bench_function(&format!("image_votes/640x480_{scene}_10trees_stride{stride}"), |b| {
-            let f = frames();
-            let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
-            b.iter(|| vote::image_votes(&f.forest, &img, &K640, &pp).unwrap())
-        });
+        c.bench_function(
+            &format!("predict/640x480_{scene}_10trees_stride{stride}"),
+            |b| {
+                let f = frames();
+                let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
+                b.iter(|| vote::predict(&f.forest, &img, &K640, &pp).unwrap())
+            },
+        );
+        c.bench_function(
+            &format!("image_votes/640x480_{scene}_10trees_stride{stride}"),
+            |b| {
+                let f = frames();
+                let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
+                b.iter(|| vote::image_votes(&f.forest, &img, &K640, &pp).unwrap())
+            },
+        );
     }
 }
 

@@ -18,7 +18,8 @@
 //!    and the [`VoteParams::refine_modes`] densest coarse modes are refined, densest first, on the
 //!    raw votes within `3h` (one gathering pass over all votes; iterations on at most
 //!    [`VoteParams::refine_votes`] of them) with the kernel of radius `h`, until the shift is
-//!    below `1e-3 h`; a coarse mode within `2h` of a refined mode is not refined again.
+//!    below `0.01 h`; a coarse mode within `max(2h, NMS distance)` of a refined mode is not
+//!    refined, and a refinement stops once it comes within the NMS distance of one.
 //!    Densities and supports are computed over all votes. Seeds and rotations run in parallel.
 //! 3. **Non-maximum suppression** on position, by position density, with radius
 //!    `max(nms_radius, h / 4)`.
@@ -37,7 +38,9 @@
 pub mod predict;
 pub mod synth;
 
-pub use predict::{depth_m_to_mm, image_votes, predict, DepthImage, ImageVotes, Intrinsics, PredictParams};
+pub use predict::{
+    depth_m_to_mm, image_votes, predict, DepthImage, ImageVotes, Intrinsics, PredictParams,
+};
 
 use crate::error::{IsaError, Result};
 use rayon::prelude::*;
@@ -115,14 +118,21 @@ impl Default for VoteParams {
 impl VoteParams {
     /// Checks every field; the error names the parameter at fault.
     pub fn validate(&self) -> Result<()> {
-        let bad = |name: &str, why: String| Err(IsaError::InvalidParameter(format!("{name} {why}")));
+        let bad =
+            |name: &str, why: String| Err(IsaError::InvalidParameter(format!("{name} {why}")));
         let h = self.position_bandwidth;
         if !(h.is_finite() && h > 1e-4 && h < 1e3) {
-            return bad("position_bandwidth", format!("must be in (1e-4, 1e3) metres, got {h}"));
+            return bad(
+                "position_bandwidth",
+                format!("must be in (1e-4, 1e3) metres, got {h}"),
+            );
         }
         let r = self.rotation_bandwidth;
         if !(r.is_finite() && r > 1e-4 && r <= std::f32::consts::PI) {
-            return bad("rotation_bandwidth", format!("must be in (1e-4, pi] radians, got {r}"));
+            return bad(
+                "rotation_bandwidth",
+                format!("must be in (1e-4, pi] radians, got {r}"),
+            );
         }
         if !(self.nms_radius.is_finite() && self.nms_radius >= 0.0) {
             return bad(
@@ -355,7 +365,11 @@ impl Grid {
                 cell.centroid[k] /= cell.weight;
             }
         }
-        Grid { cells, map, inv_cell }
+        Grid {
+            cells,
+            map,
+            inv_cell,
+        }
     }
 
     /// Calls `f` with every cell in the 3x3x3 block around `p`'s cell.
@@ -384,7 +398,9 @@ fn vote_problem(v: &PoseVote) -> Option<String> {
     let q = v.rotation;
     let n2 = q.iter().map(|x| f64::from(*x) * f64::from(*x)).sum::<f64>();
     if !(n2.is_finite() && n2 > 1e-12) {
-        return Some(format!("rotation {q:?} is not a finite non-zero quaternion"));
+        return Some(format!(
+            "rotation {q:?} is not a finite non-zero quaternion"
+        ));
     }
     None
 }
@@ -410,7 +426,8 @@ fn validate_votes(votes: &[PoseVote]) -> Result<()> {
     match bad {
         Some(i) => Err(IsaError::InvalidInput(format!(
             "votes[{i}]: {}",
-            vote_problem(&votes[i]).unwrap_or_else(|| "rotation is not a finite non-zero quaternion".into())
+            vote_problem(&votes[i])
+                .unwrap_or_else(|| "rotation is not a finite non-zero quaternion".into())
         ))),
         None => Ok(()),
     }
@@ -442,7 +459,12 @@ struct PositionMode {
 
 /// Coarse mean-shift from `start` on cell centroids weighted by cell weight (27 cells per
 /// step); returns the mode and the coarse density there. `None` if no centroid is within `h`.
-fn coarse_mean_shift(grid: &Grid, start: [f64; 3], h: f64, max_iter: usize) -> Option<([f64; 3], f64)> {
+fn coarse_mean_shift(
+    grid: &Grid,
+    start: [f64; 3],
+    h: f64,
+    max_iter: usize,
+) -> Option<([f64; 3], f64)> {
     let h2 = h * h;
     let mut m = start;
     let mut density = 0.0;
@@ -467,21 +489,33 @@ fn coarse_mean_shift(grid: &Grid, start: [f64; 3], h: f64, max_iter: usize) -> O
         let next = acc.map(|a| a / ws);
         let shift2 = dist2(next, m);
         m = next;
-        if shift2 < 1e-6 * h2 {
+        if shift2 < 1e-4 * h2 {
             break;
         }
     }
     Some((m, density))
 }
 
-/// Indices of the votes (weight > 0) within `radius` of each centre, in vote order; one pass
-/// over the votes, in parallel over fixed chunks.
+/// Indices of the votes (weight > 0) within `radius` of each centre (tested in `f32`), in vote
+/// order; one pass over the votes, in parallel over fixed chunks, 8 centres per SIMD-friendly
+/// block.
 fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>> {
     const CH: usize = 1 << 14;
-    let r2 = radius * radius;
-    let c32: Vec<[f32; 3]> = centres.iter().map(|c| c.map(|v| v as f32)).collect();
-    // A slightly larger f32 radius first (cheap), then the exact f64 test.
-    let r2f = (r2 * 1.0001 + 1e-9) as f32;
+    const B: usize = 8;
+    let r2 = (radius * radius) as f32;
+    // Centres as blocks of 8 (x, y, z lanes); padding lanes sit far away (never hit).
+    let blocks: Vec<[[f32; B]; 3]> = centres
+        .chunks(B)
+        .map(|blk| {
+            let mut b = [[1e18f32; B]; 3];
+            for (l, c) in blk.iter().enumerate() {
+                for a in 0..3 {
+                    b[a][l] = c[a] as f32;
+                }
+            }
+            b
+        })
+        .collect();
     let parts: Vec<Vec<Vec<u32>>> = votes
         .par_chunks(CH)
         .enumerate()
@@ -492,10 +526,16 @@ fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>
                     continue;
                 }
                 let p = v.position;
-                for (m, c) in c32.iter().enumerate() {
-                    let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
-                    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r2f && dist2(p.map(f64::from), centres[m]) < r2 {
-                        out[m].push((ci * CH + i) as u32);
+                for (bi, b) in blocks.iter().enumerate() {
+                    let mut mask = 0u32;
+                    for l in 0..B {
+                        let (dx, dy, dz) = (p[0] - b[0][l], p[1] - b[1][l], p[2] - b[2][l]);
+                        mask |= u32::from(dx * dx + dy * dy + dz * dz < r2) << l;
+                    }
+                    while mask != 0 {
+                        let l = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        out[bi * B + l].push((ci * CH + i) as u32);
                     }
                 }
             }
@@ -512,10 +552,11 @@ fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>
 }
 
 /// Fine mean-shift on raw votes from a coarse mode: iterations on a strided subsample of at
-/// most `refine` of the gathered votes (shift below `1e-3 h`), then the density, support and
+/// most `refine` of the gathered votes (shift below `0.01 h`), then the density, support and
 /// members over all of them. The gathered ball (radius `3h`) is refreshed if the mode drifts
 /// more than `2h` from its centre. `near`: the votes within `3h` of `start`. `None` also when
-/// the shift comes within `h / 2` of a mode in `known` (it would converge there).
+/// the shift comes within the NMS distance of a mode in `known` (it would be suppressed, or
+/// converge there; this also ends slow creeps along ridges towards a known mode).
 fn fine_mean_shift(
     votes: &[PoseVote],
     start: [f64; 3],
@@ -525,10 +566,13 @@ fn fine_mean_shift(
     known: &[PositionMode],
 ) -> Option<PositionMode> {
     let h2 = h * h;
+    let suppress = nms_distance(params);
     let mut centre = start;
     let mut m = start;
     for _round in 0..4 {
-        let sub: Vec<u32> = strided(near.len(), params.refine_votes).map(|j| near[j]).collect();
+        let sub: Vec<u32> = strided(near.len(), params.refine_votes)
+            .map(|j| near[j])
+            .collect();
         for _ in 0..params.max_iterations {
             let (mut acc, mut ws) = ([0.0f64; 3], 0.0f64);
             for &j in &sub {
@@ -549,10 +593,13 @@ fn fine_mean_shift(
             let next = acc.map(|a| a / ws);
             let shift2 = dist2(next, m);
             m = next;
-            if known.iter().any(|k| dist2(k.position, m) < 0.25 * h2) {
-                return None; // on its way to a mode already found
+            if known
+                .iter()
+                .any(|k| dist2(k.position, m) < suppress * suppress)
+            {
+                return None; // NMS would suppress it (or it would converge to a known mode)
             }
-            if shift2 < 1e-6 * h2 {
+            if shift2 < 1e-4 * h2 {
                 break;
             }
         }
@@ -581,6 +628,11 @@ fn fine_mean_shift(
         members,
         member_weights,
     })
+}
+
+/// Position modes closer than this to a stronger one are suppressed: `max(nms_radius, h / 4)`.
+fn nms_distance(params: &VoteParams) -> f64 {
+    f64::from(params.nms_radius).max(0.25 * f64::from(params.position_bandwidth))
 }
 
 /// Orders by score, highest first; ties by position (total order on floats), so sorting is
@@ -766,12 +818,14 @@ pub(crate) fn find_modes_valid(votes: &[PoseVote], params: &VoteParams) -> Vec<H
     }
     distinct.sort_by(|a, b| by_score_then_position((a.1, a.0), (b.1, b.0)));
     distinct.truncate(params.refine_modes);
-    // Refined densest first; a coarse mode within 2h of a refined one would reach it again.
+    // Refined densest first; a coarse mode within 2h (or the NMS distance) of a refined one
+    // would reach it again (or be suppressed).
     let centres: Vec<[f64; 3]> = distinct.iter().map(|d| d.0).collect();
     let near = gather(votes, &centres, 3.0 * h);
     let mut modes: Vec<PositionMode> = Vec::new();
     for (c, near) in centres.into_iter().zip(near) {
-        if modes.iter().any(|m| dist2(m.position, c) < 4.0 * h * h) {
+        let skip = (2.0 * h).max(nms_distance(params));
+        if modes.iter().any(|m| dist2(m.position, c) < skip * skip) {
             continue;
         }
         if let Some(m) = fine_mean_shift(votes, c, near, h, params, &modes) {
@@ -781,8 +835,11 @@ pub(crate) fn find_modes_valid(votes: &[PoseVote], params: &VoteParams) -> Vec<H
     modes.sort_by(|a, b| by_score_then_position((a.score, a.position), (b.score, b.position)));
 
     // NMS on positions (also merges modes that converged to the same place).
-    let r = f64::from(params.nms_radius).max(0.25 * h);
-    let keep_positions = params.max_hypotheses.saturating_mul(2).max(params.max_hypotheses + 2);
+    let r = nms_distance(params);
+    let keep_positions = params
+        .max_hypotheses
+        .saturating_mul(2)
+        .max(params.max_hypotheses + 2);
     let mut kept: Vec<PositionMode> = Vec::new();
     for m in modes {
         if kept.len() >= keep_positions {
@@ -821,7 +878,9 @@ pub(crate) fn find_modes_valid(votes: &[PoseVote], params: &VoteParams) -> Vec<H
             a.quaternion
                 .iter()
                 .zip(&b.quaternion)
-                .fold(std::cmp::Ordering::Equal, |o, (x, y)| o.then(x.total_cmp(y)))
+                .fold(std::cmp::Ordering::Equal, |o, (x, y)| {
+                    o.then(x.total_cmp(y))
+                })
         })
     });
     hyps.truncate(params.max_hypotheses);
@@ -912,7 +971,10 @@ mod tests {
     fn scene(seed: u64) -> (Vec<PoseVote>, [[f64; 3]; 2], [[f64; 4]; 2]) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let t = [[0.3, -0.1, 2.5], [-0.9, 0.2, 3.4]];
-        let q = [normalise4([0.9, 0.1, -0.3, 0.2]), normalise4([-0.2, 0.7, 0.5, -0.4])];
+        let q = [
+            normalise4([0.9, 0.1, -0.3, 0.2]),
+            normalise4([-0.2, 0.7, 0.5, -0.4]),
+        ];
         let mut v = cluster(&mut rng, 6000, t[0], 0.03, q[0], 0.08, 1.0);
         v.extend(cluster(&mut rng, 3000, t[1], 0.03, q[1], 0.08, 1.0));
         v.extend(outliers(&mut rng, 8000));
@@ -971,7 +1033,10 @@ mod tests {
             assert!(quat_angle(sub[k].quaternion, q[k]) < 2f64.to_radians());
             assert!(tdist(sub[k].translation, full[k].translation) < 0.005);
             // Densities and supports still count every vote.
-            assert!((sub[k].position_score - full[k].position_score).abs() < 0.02 * full[k].position_score);
+            assert!(
+                (sub[k].position_score - full[k].position_score).abs()
+                    < 0.02 * full[k].position_score
+            );
         }
     }
 
@@ -1029,7 +1094,11 @@ mod tests {
         let q = axis_angle([0.0, 0.0, 1.0], std::f64::consts::PI);
         let votes = cluster(&mut rng, 2000, [0.0, 0.0, 2.0], 0.02, q, 0.1, 1.0);
         let hyps = find_modes(&votes, &VoteParams::default()).unwrap();
-        assert!(quat_angle(hyps[0].quaternion, q) < 2f64.to_radians(), "{:?}", hyps[0]);
+        assert!(
+            quat_angle(hyps[0].quaternion, q) < 2f64.to_radians(),
+            "{:?}",
+            hyps[0]
+        );
     }
 
     #[test]
@@ -1039,10 +1108,16 @@ mod tests {
         let a = find_modes(&votes, &p).unwrap();
         let b = find_modes(&votes, &p).unwrap();
         assert_eq!(a, b);
-        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
         let c = one.install(|| find_modes(&votes, &p).unwrap());
         assert_eq!(a, c);
-        let three = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let three = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
         let d = three.install(|| find_modes(&votes, &p).unwrap());
         assert_eq!(a, d);
         // Reversed input: the same modes up to float summation order and which votes the
@@ -1091,7 +1166,10 @@ mod tests {
         assert_eq!(hyps.len(), 3);
         // The three biggest clusters (i = 7, 6, 5), in that order.
         for (k, hy) in hyps.iter().enumerate() {
-            assert!(tdist(hy.translation, [0.5 * (7 - k) as f64, 0.0, 3.0]) < 0.01, "{hy:?}");
+            assert!(
+                tdist(hy.translation, [0.5 * (7 - k) as f64, 0.0, 3.0]) < 0.01,
+                "{hy:?}"
+            );
         }
         // With an NMS radius over 0.5 m neighbours suppress each other.
         let p = VoteParams {
@@ -1114,7 +1192,15 @@ mod tests {
         let q1 = axis_angle([0.0, 0.0, 1.0], 0.3);
         let q2 = axis_angle([0.0, 0.0, 1.0], 0.3 + std::f64::consts::PI);
         let mut votes = cluster(&mut rng, 1500, [0.0, 0.0, 2.0], 0.02, q1, 0.05, 1.0);
-        votes.extend(cluster(&mut rng, 1000, [0.0, 0.0, 2.0], 0.02, q2, 0.05, 1.0));
+        votes.extend(cluster(
+            &mut rng,
+            1000,
+            [0.0, 0.0, 2.0],
+            0.02,
+            q2,
+            0.05,
+            1.0,
+        ));
         let p = VoteParams {
             rotations_per_position: 2,
             ..Default::default()
@@ -1135,9 +1221,13 @@ mod tests {
             rotation: [1.0, 0.0, 0.0, 0.0],
             weight: 0.0,
         };
-        assert!(find_modes(&[v; 10], &VoteParams::default()).unwrap().is_empty());
+        assert!(find_modes(&[v; 10], &VoteParams::default())
+            .unwrap()
+            .is_empty());
         let v1 = PoseVote { weight: 1.0, ..v };
-        assert!(find_modes(&[v1; 2], &VoteParams::default()).unwrap().is_empty());
+        assert!(find_modes(&[v1; 2], &VoteParams::default())
+            .unwrap()
+            .is_empty());
         let hyps = find_modes(&[v1; 3], &VoteParams::default()).unwrap();
         assert_eq!(hyps.len(), 1);
         assert_eq!(hyps[0].support, 3);
@@ -1162,14 +1252,21 @@ mod tests {
         };
         let mut votes = vec![good; 5];
         votes[3].position[1] = f32::NAN;
-        let e = find_modes(&votes, &VoteParams::default()).unwrap_err().to_string();
+        let e = find_modes(&votes, &VoteParams::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("votes[3]") && e.contains("position"), "{e}");
-        votes[3] = PoseVote { weight: -1.0, ..good };
+        votes[3] = PoseVote {
+            weight: -1.0,
+            ..good
+        };
         votes[4] = PoseVote {
             rotation: [0.0; 4],
             ..good
         };
-        let e = find_modes(&votes, &VoteParams::default()).unwrap_err().to_string();
+        let e = find_modes(&votes, &VoteParams::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("votes[3]") && e.contains("weight"), "{e}");
         for (p, name) in [
             (

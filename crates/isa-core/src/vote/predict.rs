@@ -112,7 +112,10 @@ impl PredictParams {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(IsaError::InvalidParameter(m));
         if self.stride == 0 || self.stride > 1024 {
-            return bad(format!("stride must be in 1..=1024 pixels, got {}", self.stride));
+            return bad(format!(
+                "stride must be in 1..=1024 pixels, got {}",
+                self.stride
+            ));
         }
         if !(self.min_depth.is_finite() && self.min_depth >= 0.0) {
             return bad(format!(
@@ -155,7 +158,11 @@ impl<'a> DepthImage<'a> {
                 data.len()
             )));
         }
-        Ok(Self { data, width, height })
+        Ok(Self {
+            data,
+            width,
+            height,
+        })
     }
 }
 
@@ -194,7 +201,9 @@ fn parts_of(depth: &DepthImage<'_>, params: &PredictParams) -> Result<(DepthStor
     store.push(depth.width, depth.height, depth.data)?;
     let mut parts = sample_parts(&store, params.stride, None, 0)?;
     let lo = (params.min_depth * 1000.0).ceil().max(1.0) as u32;
-    let hi = params.max_depth.map_or(u32::MAX, |m| (m * 1000.0).floor() as u32);
+    let hi = params
+        .max_depth
+        .map_or(u32::MAX, |m| (m * 1000.0).floor() as u32);
     if lo > 1 || hi < u16::MAX as u32 {
         parts.retain(|p| {
             let d = u32::from(store.center_depth(p));
@@ -211,7 +220,12 @@ const LANES: usize = 16;
 /// Leaf of every part `(u, v, depth mm > 0)` in `tree`: the same decisions as
 /// [`Tree::leaf_of`](crate::tree::Tree::leaf_of) (same `Feature::eval_at`, `f < threshold` goes
 /// to `child`), traversed [`LANES`] parts at a time with branch-free child selection.
-pub(crate) fn leaves_batched(tree: &Tree, img: &ImageRef<'_>, parts: &[(i32, i32, u16)], out: &mut [u32]) {
+pub(crate) fn leaves_batched(
+    tree: &Tree,
+    img: &ImageRef<'_>,
+    parts: &[(i32, i32, u16)],
+    out: &mut [u32],
+) {
     let nodes = &tree.nodes;
     for (group, out_group) in parts.chunks(LANES).zip(out.chunks_mut(LANES)) {
         let mut idx = [0u32; LANES];
@@ -223,7 +237,11 @@ pub(crate) fn leaves_batched(tree: &Tree, img: &ImageRef<'_>, parts: &[(i32, i32
                     continue;
                 }
                 moved = true;
-                let f = if d == 0 { 0.0 } else { nd.feature.eval_at(img, u, v, d) };
+                let f = if d == 0 {
+                    0.0
+                } else {
+                    nd.feature.eval_at(img, u, v, d)
+                };
                 idx[k] = nd.child + u32::from(f >= nd.threshold);
             }
             if !moved {
@@ -246,7 +264,11 @@ fn collect_votes(
     meta: bool,
 ) -> ImageVotes {
     let n_trees = forest.n_trees();
-    let inv_trees = if n_trees > 0 { 1.0 / n_trees as f32 } else { 0.0 };
+    let inv_trees = if n_trees > 0 {
+        1.0 / n_trees as f32
+    } else {
+        0.0
+    };
     let min_w = params.min_leaf_weight;
     let chunks: Vec<ImageVotes> = parts
         .par_chunks(CHUNK)
@@ -256,11 +278,15 @@ fn collect_votes(
                 .iter()
                 .map(|p| {
                     let z = f64::from(store.center_depth(p)) * 1e-3;
-                    k.back_project(f64::from(p[1]), f64::from(p[2]), z).map(|c| c as f32)
+                    k.back_project(f64::from(p[1]), f64::from(p[2]), z)
+                        .map(|c| c as f32)
                 })
                 .collect();
             let img = store.image(0);
-            let pix: Vec<(i32, i32, u16)> = chunk.iter().map(|p| (p[1], p[2], img.get(p[1], p[2]))).collect();
+            let pix: Vec<(i32, i32, u16)> = chunk
+                .iter()
+                .map(|p| (p[1], p[2], img.get(p[1], p[2])))
+                .collect();
             let mut leaves = vec![0u32; chunk.len()];
             let mut out = ImageVotes::default();
             out.votes.reserve(chunk.len() * n_trees);
@@ -376,7 +402,13 @@ mod tests {
     fn votes_are_back_projected_part_centres_plus_offsets() {
         let (w, h) = (32usize, 24usize);
         let depth: Vec<u16> = (0..w * h)
-            .map(|i| if i % 7 == 0 { 0 } else { 1500 + (i % 13) as u16 * 100 })
+            .map(|i| {
+                if i % 7 == 0 {
+                    0
+                } else {
+                    1500 + (i % 13) as u16 * 100
+                }
+            })
             .collect();
         let leaf_votes = [
             Vote {
@@ -417,7 +449,9 @@ mod tests {
                 leaf_votes[1]
             };
             for a in 0..3 {
-                assert!((f64::from(vote.position[a]) - (x[a] + f64::from(lv.offset[a]))).abs() < 1e-5);
+                assert!(
+                    (f64::from(vote.position[a]) - (x[a] + f64::from(lv.offset[a]))).abs() < 1e-5
+                );
             }
             assert_eq!(vote.weight, lv.weight / 4.0);
         }
@@ -470,9 +504,12 @@ mod tests {
         assert!(predict(&forest, &img, &K, &PredictParams::default())
             .unwrap()
             .is_empty());
-        assert!(Intrinsics::from_matrix([[1.0, 0.0, 2.0], [0.0, 1.0, 2.0], [0.0, 0.0, 2.0]]).is_err());
+        assert!(
+            Intrinsics::from_matrix([[1.0, 0.0, 2.0], [0.0, 1.0, 2.0], [0.0, 0.0, 2.0]]).is_err()
+        );
         assert_eq!(
-            Intrinsics::from_matrix([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]]).unwrap(),
+            Intrinsics::from_matrix([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+                .unwrap(),
             Intrinsics::KINECT_V1
         );
     }
@@ -548,7 +585,10 @@ mod tests {
             store.push(160, 120, &depth).unwrap();
             let parts = sample_parts(&store, 1, None, 0).unwrap();
             let img = store.image(0);
-            let pix: Vec<(i32, i32, u16)> = parts.iter().map(|p| (p[1], p[2], img.get(p[1], p[2]))).collect();
+            let pix: Vec<(i32, i32, u16)> = parts
+                .iter()
+                .map(|p| (p[1], p[2], img.get(p[1], p[2])))
+                .collect();
             for tree in &forest.trees {
                 let mut leaves = vec![0u32; parts.len()];
                 leaves_batched(tree, &img, &pix, &mut leaves);
@@ -574,15 +614,24 @@ mod tests {
             let hyps = predict(&forest, &img, &kk, &params).unwrap();
             assert!(!hyps.is_empty());
             let best = &hyps[0];
-            let err_t = (0..3).map(|a| (best.translation[a] - t[a]).powi(2)).sum::<f64>().sqrt();
+            let err_t = (0..3)
+                .map(|a| (best.translation[a] - t[a]).powi(2))
+                .sum::<f64>()
+                .sqrt();
             let err_r = quat_angle(best.quaternion, super::super::matrix_to_quat(r)).to_degrees();
-            assert!(err_t < 0.03, "view {i}: translation error {err_t} m, {best:?}");
+            assert!(
+                err_t < 0.03,
+                "view {i}: translation error {err_t} m, {best:?}"
+            );
             assert!(err_r < 5.0, "view {i}: rotation error {err_r} deg");
             for w in hyps.windows(2) {
                 assert!(w[0].score >= w[1].score);
             }
             // Deterministic, whatever the thread count.
-            let one = crate::forest::with_threads(Some(1), || predict(&forest, &img, &kk, &params).unwrap()).unwrap();
+            let one = crate::forest::with_threads(Some(1), || {
+                predict(&forest, &img, &kk, &params).unwrap()
+            })
+            .unwrap();
             assert_eq!(one, hyps);
         }
     }
