@@ -1,0 +1,529 @@
+//! The `isa` binary end to end: train -> inspect -> predict on a small synthetic set (poses
+//! recovered, JSON and BOP CSV outputs, BOP scene folders with depth_scale), and the exit codes
+//! and messages for bad inputs.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use isa_core::trainset_io::{self, TrainSetData};
+use isa_core::vote::{matrix_to_quat, quat_angle, synth, Intrinsics};
+use isa_core::{sample_parts, DepthStore};
+
+const K: Intrinsics = Intrinsics {
+    fx: 200.0,
+    fy: 200.0,
+    cx: 79.5,
+    cy: 59.5,
+};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("isa-cli-tests");
+    std::fs::create_dir_all(&d).unwrap();
+    d.join(name)
+}
+
+fn isa(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_isa"))
+        .args(args)
+        .output()
+        .expect("run isa")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn poses() -> Vec<([[f64; 3]; 3], [f64; 3])> {
+    (0..12)
+        .map(|i| synth::look_at(i as f64 * std::f64::consts::TAU / 12.0, 0.35, 2.5))
+        .collect()
+}
+
+/// A training set of 12 views of the synthetic chair (160x120).
+fn write_trainset(path: &Path) {
+    let chair = synth::chair();
+    let mut store = DepthStore::new();
+    let poses = poses();
+    for (r, t) in &poses {
+        store
+            .push(160, 120, &synth::render(&chair, *r, *t, &K, 160, 120))
+            .unwrap();
+    }
+    let parts = sample_parts(&store, 2, Some(400), 7).unwrap();
+    let (mut offsets, mut rotations) = (Vec::new(), Vec::new());
+    for (i, (r, t)) in poses.iter().enumerate() {
+        let mine: Vec<[i32; 3]> = parts.iter().filter(|p| p[0] == i as i32).copied().collect();
+        let (o, q) = synth::targets(&mine, store.image(i).data, 160, *r, *t, &K);
+        offsets.extend(o);
+        rotations.extend(q);
+    }
+    let ts = TrainSetData {
+        store,
+        parts,
+        offsets,
+        rotations,
+        link_angles: None,
+        node_offsets: None,
+        metadata: r#"{"category": "chair", "ssc": [0, 0, 0]}"#.into(),
+    };
+    trainset_io::write(&ts, path).unwrap();
+}
+
+/// Trained once for all tests: the model path.
+fn model() -> &'static PathBuf {
+    static MODEL: OnceLock<PathBuf> = OnceLock::new();
+    MODEL.get_or_init(|| {
+        let ts = tmp("chair.isat");
+        write_trainset(&ts);
+        let m = tmp("chair.isaf");
+        let o = isa(&[
+            "train",
+            ts.to_str().unwrap(),
+            "-o",
+            m.to_str().unwrap(),
+            "--n-trees",
+            "4",
+            "--max-depth",
+            "14",
+            "--quality",
+            "Q1",
+            "--n-candidates",
+            "60",
+            "--min-samples-split",
+            "10",
+            "--min-samples-leaf",
+            "3",
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "train failed: {}", stderr(&o));
+        m
+    })
+}
+
+fn write_png(path: &Path, w: usize, h: usize, px: Vec<u16>) {
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w as u32, h as u32, px)
+        .unwrap()
+        .save(path)
+        .unwrap();
+}
+
+/// Training view `i` of the chair in a 320x240 frame, shifted sideways: (depth, K, R, t).
+fn test_view(i: usize) -> (Vec<u16>, Intrinsics, [[f64; 3]; 3], [f64; 3]) {
+    let k = Intrinsics {
+        cx: 159.5,
+        cy: 119.5,
+        ..K
+    };
+    let (r, mut t) = poses()[i];
+    t[0] += 0.3;
+    (synth::render(&synth::chair(), r, t, &k, 320, 240), k, r, t)
+}
+
+fn err_t(a: &[f64], b: [f64; 3]) -> f64 {
+    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
+}
+
+#[test]
+fn train_inspect_predict_round_trip() {
+    let m = model().to_str().unwrap();
+    // inspect: text and JSON
+    let o = isa(&["inspect", m]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("4 trees") && text.contains("chair") && text.contains("Q1"),
+        "{text}"
+    );
+    let o = isa(&["inspect", m, "--json"]);
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(doc["n_trees"], 4);
+    assert_eq!(doc["metadata"]["category"], "chair");
+    assert_eq!(doc["params"]["max_depth"], 14);
+    assert_eq!(doc["trees"].as_array().unwrap().len(), 4);
+
+    // predict: JSON on stdout
+    let (depth, k, r, t) = test_view(5);
+    let png = tmp("view5.png");
+    write_png(&png, 320, 240, depth);
+    let (fx, fy, cx, cy) = (
+        k.fx.to_string(),
+        k.fy.to_string(),
+        k.cx.to_string(),
+        k.cy.to_string(),
+    );
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        png.to_str().unwrap(),
+        "-k",
+        &fx,
+        &fy,
+        &cx,
+        &cy,
+        "--stride",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let hyps = doc["images"][0]["hypotheses"].as_array().unwrap();
+    assert!(!hyps.is_empty() && hyps.len() <= 5);
+    let best = &hyps[0];
+    let tt: Vec<f64> = best["t"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(err_t(&tt, t) < 0.03, "translation {tt:?} vs {t:?}");
+    let q: Vec<f64> = best["quaternion"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(quat_angle([q[0], q[1], q[2], q[3]], matrix_to_quat(r)).to_degrees() < 5.0);
+    let scores: Vec<f64> = hyps.iter().map(|h| h["score"].as_f64().unwrap()).collect();
+    assert!(scores.windows(2).all(|w| w[0] >= w[1]));
+    assert_eq!(doc["params"]["stride"], 2);
+}
+
+#[test]
+fn bop_scene_folder_with_depth_scale_to_csv() {
+    let m = model().to_str().unwrap();
+    let scene = tmp("000007");
+    std::fs::create_dir_all(scene.join("depth")).unwrap();
+    let mut cams = serde_json::Map::new();
+    let mut truth = Vec::new();
+    for (id, view) in [(3u64, 2usize), (4, 8)] {
+        let (depth, k, _r, t) = test_view(view);
+        // BOP-style: PNG values in 0.1 mm units, depth_scale 0.1
+        let px: Vec<u16> = depth
+            .iter()
+            .map(|&d| (u32::from(d) * 10).min(65535) as u16)
+            .collect();
+        write_png(
+            &scene.join("depth").join(format!("{id:06}.png")),
+            320,
+            240,
+            px,
+        );
+        cams.insert(
+            id.to_string(),
+            serde_json::json!({"cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0], "depth_scale": 0.1}),
+        );
+        truth.push((id, t));
+    }
+    std::fs::write(
+        scene.join("scene_camera.json"),
+        serde_json::Value::Object(cams).to_string(),
+    )
+    .unwrap();
+    let csv = tmp("results.csv");
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "--scene",
+        scene.to_str().unwrap(),
+        "--format",
+        "bop",
+        "--obj-id",
+        "5",
+        "--stride",
+        "2",
+        "--max-hypotheses",
+        "2",
+        "-o",
+        csv.to_str().unwrap(),
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("scene_id,im_id,obj_id,score,R,t,time"));
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert!(rows.len() >= 2 && rows.len() <= 4);
+    for (id, t) in truth {
+        let row = rows
+            .iter()
+            .find(|r| r[1] == id.to_string())
+            .expect("a row per image");
+        assert_eq!((row[0], row[2]), ("7", "5"));
+        assert_eq!(row[4].split(' ').count(), 9);
+        let tmm: Vec<f64> = row[5]
+            .split(' ')
+            .map(|v| v.parse::<f64>().unwrap() / 1000.0)
+            .collect();
+        assert!(err_t(&tmm, t) < 0.03, "image {id}: {tmm:?} vs {t:?}");
+        assert!(row[6].parse::<f64>().unwrap() >= 0.0);
+    }
+}
+
+#[test]
+fn missing_files_exit_3_naming_them() {
+    let o = isa(&[
+        "predict",
+        "-m",
+        "/nonexistent/model.isaf",
+        "-d",
+        "x.png",
+        "-k",
+        "1",
+        "1",
+        "0",
+        "0",
+    ]);
+    assert_eq!(o.status.code(), Some(3));
+    assert!(
+        stderr(&o).contains("/nonexistent/model.isaf") && stderr(&o).contains("does not exist"),
+        "{}",
+        stderr(&o)
+    );
+    let o = isa(&["inspect", "/nonexistent/model.isaf"]);
+    assert_eq!(o.status.code(), Some(3));
+    let o = isa(&[
+        "train",
+        "/nonexistent/t.isat",
+        "-o",
+        tmp("never.isaf").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(3));
+    assert!(stderr(&o).contains("/nonexistent/t.isat"), "{}", stderr(&o));
+    let m = model().to_str().unwrap();
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        "/nonexistent/depth.png",
+        "-k",
+        "200",
+        "200",
+        "79.5",
+        "59.5",
+    ]);
+    assert_eq!(o.status.code(), Some(3));
+    assert!(
+        stderr(&o).contains("/nonexistent/depth.png"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn corrupt_model_and_trainset_exit_4() {
+    let bad = tmp("corrupt.isaf");
+    std::fs::write(&bad, b"this is not a model file at all").unwrap();
+    let o = isa(&["inspect", bad.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(4));
+    let e = stderr(&o);
+    assert!(
+        e.contains("corrupt.isaf") && e.contains("invalid model file"),
+        "{e}"
+    );
+    // A real model with one byte flipped: the checksum catches it.
+    let mut bytes = std::fs::read(model()).unwrap();
+    let n = bytes.len();
+    bytes[n / 2] ^= 0x55;
+    let flipped = tmp("flipped.isaf");
+    std::fs::write(&flipped, bytes).unwrap();
+    let png = tmp("small.png");
+    write_png(&png, 160, 120, vec![1000; 160 * 120]);
+    let o = isa(&[
+        "predict",
+        "-m",
+        flipped.to_str().unwrap(),
+        "-d",
+        png.to_str().unwrap(),
+        "-k",
+        "200",
+        "200",
+        "79.5",
+        "59.5",
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(stderr(&o).contains("flipped.isaf"), "{}", stderr(&o));
+    let badts = tmp("corrupt.isat");
+    std::fs::write(&badts, b"ISATRAIN garbage").unwrap();
+    let o = isa(&[
+        "train",
+        badts.to_str().unwrap(),
+        "-o",
+        tmp("never.isaf").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(stderr(&o).contains("corrupt.isat"), "{}", stderr(&o));
+}
+
+#[test]
+fn wrong_images_exit_4_with_reason() {
+    let m = model().to_str().unwrap();
+    // Too small for the intrinsics (principal point outside the image).
+    let small = tmp("tiny.png");
+    write_png(&small, 20, 10, vec![1000; 200]);
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        small.to_str().unwrap(),
+        "-k",
+        "525",
+        "525",
+        "319.5",
+        "239.5",
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    let e = stderr(&o);
+    assert!(
+        e.contains("tiny.png") && e.contains("20x10") && e.contains("wrong-size"),
+        "{e}"
+    );
+    // A camera.json that names the size.
+    let cam = tmp("camera.json");
+    std::fs::write(&cam, r#"{"fx": 200, "fy": 200, "cx": 79.5, "cy": 59.5, "width": 160, "height": 120, "depth_scale": 1}"#)
+        .unwrap();
+    let wide = tmp("wide.png");
+    write_png(&wide, 200, 120, vec![1000; 200 * 120]);
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        wide.to_str().unwrap(),
+        "-c",
+        cam.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    let e = stderr(&o);
+    assert!(
+        e.contains("wide.png") && e.contains("200x120") && e.contains("160x120"),
+        "{e}"
+    );
+    // 8-bit PNG.
+    let eight = tmp("eight.png");
+    image::GrayImage::from_raw(16, 16, vec![7u8; 256])
+        .unwrap()
+        .save(&eight)
+        .unwrap();
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        eight.to_str().unwrap(),
+        "-k",
+        "20",
+        "20",
+        "7.5",
+        "7.5",
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(
+        stderr(&o).contains("eight.png") && stderr(&o).contains("16-bit"),
+        "{}",
+        stderr(&o)
+    );
+    // Not an image at all.
+    let txt = tmp("notimage.png");
+    std::fs::write(&txt, "hello").unwrap();
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        txt.to_str().unwrap(),
+        "-k",
+        "20",
+        "20",
+        "7.5",
+        "7.5",
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(stderr(&o).contains("notimage.png"), "{}", stderr(&o));
+}
+
+#[test]
+fn bad_parameters_exit_5_and_usage_exit_2() {
+    let m = model().to_str().unwrap();
+    let png = tmp("plain.png");
+    write_png(&png, 160, 120, vec![1000; 160 * 120]);
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        png.to_str().unwrap(),
+        "-k",
+        "200",
+        "200",
+        "79.5",
+        "59.5",
+        "--stride",
+        "0",
+    ]);
+    assert_eq!(o.status.code(), Some(5));
+    assert!(stderr(&o).contains("stride"), "{}", stderr(&o));
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        png.to_str().unwrap(),
+        "-k",
+        "0",
+        "200",
+        "79.5",
+        "59.5",
+    ]);
+    assert_eq!(o.status.code(), Some(5));
+    assert!(stderr(&o).contains("intrinsics"), "{}", stderr(&o));
+    let params = tmp("params.json");
+    std::fs::write(&params, r#"{"vote": {"bandwith": 1}}"#).unwrap();
+    let o = isa(&[
+        "predict",
+        "-m",
+        m,
+        "-d",
+        png.to_str().unwrap(),
+        "-k",
+        "200",
+        "200",
+        "79.5",
+        "59.5",
+        "--params",
+        params.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(5));
+    assert!(stderr(&o).contains("bandwith"), "{}", stderr(&o));
+    let ts = tmp("q2.isat");
+    write_trainset(&ts);
+    let o = isa(&[
+        "train",
+        ts.to_str().unwrap(),
+        "-o",
+        tmp("never.isaf").to_str().unwrap(),
+        "--quality",
+        "Q1+Q2",
+    ]);
+    assert_eq!(o.status.code(), Some(5));
+    assert!(stderr(&o).contains("link angles"), "{}", stderr(&o));
+    let o = isa(&[
+        "train",
+        ts.to_str().unwrap(),
+        "-o",
+        tmp("never.isaf").to_str().unwrap(),
+        "--quality",
+        "Q7",
+    ]);
+    assert_eq!(o.status.code(), Some(5));
+    assert!(stderr(&o).contains("quality"), "{}", stderr(&o));
+    let o = isa(&["predict"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = isa(&["predict", "-m", m]);
+    assert_eq!(o.status.code(), Some(5));
+    assert!(stderr(&o).contains("--depth"), "{}", stderr(&o));
+}
