@@ -108,17 +108,23 @@ enum Format {
 /// Predict 6D poses in depth images: every part of the whole image votes (no segmentation, no
 /// boxes); modes of the votes become ranked hypotheses.
 ///
-/// Inputs: `--depth` PNGs (16-bit, millimetres, 0 = missing) with `--intrinsics` or
-/// `--camera`, or a BOP scene folder with `--scene`.
+/// Inputs: depth PNGs (16-bit, millimetres, 0 = missing) with `--intrinsics` or `--camera`, or
+/// a BOP scene folder with `--scene`. Examples:
+///
+///   isa predict chair.isaf depth.png -k 525 525 319.5 239.5
+///
+///   isa predict chair.isaf scene/depth/000012.png --camera scene/scene_camera.json
+///
+///   isa predict chair.isaf --scene bop/test/000001 --format bop -o results.csv
 #[derive(Args)]
 #[command(after_help = EXIT_CODES)]
 struct PredictArgs {
     /// Model file written by `isa train` or Python's `Forest.save`.
-    #[arg(short, long, value_name = "MODEL")]
+    #[arg(value_name = "MODEL")]
     model: PathBuf,
     /// Depth images: 16-bit single-channel PNGs in millimetres (times the camera's depth_scale
     /// with --camera), 0 = missing.
-    #[arg(short, long, value_name = "PNG", num_args = 1.., conflicts_with = "scene")]
+    #[arg(value_name = "PNG", conflicts_with = "scene")]
     depth: Vec<PathBuf>,
     /// Pinhole intrinsics in pixels: FX FY CX CY.
     #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera")]
@@ -516,7 +522,8 @@ fn jobs(a: &PredictArgs) -> CliResult<(Vec<ImageJob>, Option<u64>)> {
     }
     if a.depth.is_empty() {
         return Err(CliError::param(
-            "give depth images with --depth PNG... or a BOP scene folder with --scene DIR".into(),
+            "give depth images (isa predict MODEL PNG...) or a BOP scene folder with --scene DIR"
+                .into(),
         ));
     }
     let cam = a

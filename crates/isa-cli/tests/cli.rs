@@ -154,9 +154,7 @@ fn train_inspect_predict_round_trip() {
     );
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         png.to_str().unwrap(),
         "-k",
         &fx,
@@ -224,7 +222,6 @@ fn bop_scene_folder_with_depth_scale_to_csv() {
     let csv = tmp("results.csv");
     let o = isa(&[
         "predict",
-        "-m",
         m,
         "--scene",
         scene.to_str().unwrap(),
@@ -266,9 +263,7 @@ fn bop_scene_folder_with_depth_scale_to_csv() {
 fn missing_files_exit_3_naming_them() {
     let o = isa(&[
         "predict",
-        "-m",
         "/nonexistent/model.isaf",
-        "-d",
         "x.png",
         "-k",
         "1",
@@ -295,9 +290,7 @@ fn missing_files_exit_3_naming_them() {
     let m = model().to_str().unwrap();
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         "/nonexistent/depth.png",
         "-k",
         "200",
@@ -334,9 +327,7 @@ fn corrupt_model_and_trainset_exit_4() {
     write_png(&png, 160, 120, vec![1000; 160 * 120]);
     let o = isa(&[
         "predict",
-        "-m",
         flipped.to_str().unwrap(),
-        "-d",
         png.to_str().unwrap(),
         "-k",
         "200",
@@ -366,9 +357,7 @@ fn wrong_images_exit_4_with_reason() {
     write_png(&small, 20, 10, vec![1000; 200]);
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         small.to_str().unwrap(),
         "-k",
         "525",
@@ -390,9 +379,7 @@ fn wrong_images_exit_4_with_reason() {
     write_png(&wide, 200, 120, vec![1000; 200 * 120]);
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         wide.to_str().unwrap(),
         "-c",
         cam.to_str().unwrap(),
@@ -411,9 +398,7 @@ fn wrong_images_exit_4_with_reason() {
         .unwrap();
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         eight.to_str().unwrap(),
         "-k",
         "20",
@@ -432,9 +417,7 @@ fn wrong_images_exit_4_with_reason() {
     std::fs::write(&txt, "hello").unwrap();
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         txt.to_str().unwrap(),
         "-k",
         "20",
@@ -453,9 +436,7 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     write_png(&png, 160, 120, vec![1000; 160 * 120]);
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         png.to_str().unwrap(),
         "-k",
         "200",
@@ -469,9 +450,7 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     assert!(stderr(&o).contains("stride"), "{}", stderr(&o));
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         png.to_str().unwrap(),
         "-k",
         "0",
@@ -485,9 +464,7 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     std::fs::write(&params, r#"{"vote": {"bandwith": 1}}"#).unwrap();
     let o = isa(&[
         "predict",
-        "-m",
         m,
-        "-d",
         png.to_str().unwrap(),
         "-k",
         "200",
@@ -523,7 +500,7 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     assert!(stderr(&o).contains("quality"), "{}", stderr(&o));
     let o = isa(&["predict"]);
     assert_eq!(o.status.code(), Some(2));
-    let o = isa(&["predict", "-m", m]);
+    let o = isa(&["predict", m]);
     assert_eq!(o.status.code(), Some(5));
-    assert!(stderr(&o).contains("--depth"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("PNG"), "{}", stderr(&o));
 }
