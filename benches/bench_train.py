@@ -17,7 +17,9 @@ forest. It times
   the same features and the 76-dim (or 7-dim) targets: one root split search (ExtraTrees draws
   one threshold per feature, with a cheap MSE criterion).
 
-Throughput is part x candidate evaluations per second of wall time; ratios are Rust / other.
+Throughput is part x candidate evaluations per second of wall time; ratios are Rust / other
+(``rust`` uses both cores, ``rust/1t`` one thread; the NumPy label names its strategy and BLAS
+threads).
 
 ``--paper-scale`` trains the full forest instead: 10 trees, depth 20, 100 candidates per node,
 Q1+Q2+Q3, on ~1M parts of ~2,500 synthetic depth crops, reporting wall time and peak memory
@@ -43,6 +45,7 @@ import sys
 import time
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from isa import _core
 
@@ -219,8 +222,9 @@ def numpy_split_search_sorted(features, targets, dims, reg=1e-4, seed=0):
     x = x - x.mean(0)
     starts = [int(v) for v in np.cumsum([0] + dims[:-1])]
     rng = np.random.default_rng(seed)
+    xb = [np.ascontiguousarray(x[:, s:s + d]) for s, d in zip(starts, dims)]
     p1 = x.sum(0)
-    p2 = [x[:, s:s + d].T @ x[:, s:s + d] for s, d in zip(starts, dims)]
+    p2 = [b.T @ b for b in xb]
 
     def entropies(cnt, s1, s2s):  # cnt (T,), s1 (T, D), s2s list of (T, d, d)
         mean = s1 / cnt[:, None]
@@ -239,15 +243,16 @@ def numpy_split_search_sorted(features, targets, dims, reg=1e-4, seed=0):
         order = np.argsort(bins, kind="stable")
         counts = np.bincount(bins, minlength=K + 1)
         edges = np.concatenate([[0], np.cumsum(counts)])
-        xs = x[order]
-        s1 = np.add.reduceat(xs, edges[:-1], axis=0) * (counts > 0)[:, None]
+        s1 = np.zeros((K + 1, x.shape[1]))
         s2 = []
-        for s, d in zip(starts, dims):
+        for bi, (s, d) in enumerate(zip(starts, dims)):
+            xs = xb[bi][order]  # contiguous block rows in bin order: BLAS-friendly segments
             blk = np.zeros((K + 1, d, d))
             for b in range(K + 1):
                 if counts[b]:
-                    seg = xs[edges[b]:edges[b + 1], s:s + d]
+                    seg = xs[edges[b]:edges[b + 1]]
                     blk[b] = seg.T @ seg
+                    s1[b, s:s + d] = seg.sum(0)
             s2.append(np.cumsum(blk, 0)[:K])
         cl = np.cumsum(counts)[:K].astype(float)
         l1 = np.cumsum(s1, 0)[:K]
@@ -285,16 +290,24 @@ def bench_split(args):
         q = "Q1" if a is None else "Q1+Q2+Q3"
         r = _core.split_search(feats, off, rot, a, s, quality=q, n_thresholds=K, reduce_dims=rd, seed=1)
         t_rust = r["seconds"]
+        r1 = _core.split_search(feats, off, rot, a, s, quality=q, n_thresholds=K, reduce_dims=rd, seed=1, n_threads=1)
         tg, dims = _core.criterion_targets(off, rot, a, s, reduce_dims=rd)
-        # The faster of the two NumPy strategies (one-hot GEMM is hopeless for full a, s).
-        t_np, (g_np, _, _) = timed(numpy_split_search_sorted, feats, tg, dims, seed=1)
-        how = "sorted"
-        if rd or a is None:
-            t_oh, (g_oh, _, _) = timed(numpy_split_search, feats, tg, dims, seed=1)
-            if t_oh < t_np:
-                t_np, g_np, how = t_oh, g_oh, "one-hot"
+        # The faster of the two NumPy strategies (one-hot GEMM is hopeless for full a, s), with
+        # the faster BLAS thread count (a second OpenBLAS thread busy-waits: on a loaded 2-core
+        # machine it made the tall-skinny products up to 10x slower).
+        best_np = None
+        for blas_threads in (1, 2):
+            with threadpool_limits(blas_threads):
+                cands = [("sorted", numpy_split_search_sorted)]
+                if rd or a is None:
+                    cands.append(("one-hot", numpy_split_search))
+                for how, fn in cands:
+                    t_np, (g_np, _, _) = timed(fn, feats, tg, dims, seed=1)
+                    if best_np is None or t_np < best_np[0]:
+                        best_np = (t_np, g_np, f"numpy:{how}/{blas_threads}t")
         rows.append((name, "rust", t_rust, evals / t_rust, r["gain"]))
-        rows.append((name, f"numpy:{how}", t_np, evals / t_np, g_np))
+        rows.append((name, "rust/1t", r1["seconds"], evals / r1["seconds"], r1["gain"]))
+        rows.append((name, best_np[2], best_np[0], evals / best_np[0], best_np[1]))
     from sklearn.ensemble import ExtraTreesRegressor
 
     for name, y in [("sklearn 76-dim", sklearn_targets(off, rot, la, no)), ("sklearn 7-dim", np.concatenate([off, rot], 1))]:
@@ -308,7 +321,8 @@ def bench_split(args):
     rust = {r[0]: r[3] for r in rows if r[1] == "rust"}
     for name, impl, _, rate, _ in rows:
         if impl.startswith("numpy"):
-            print(f"  {name:34s} rust / numpy   = {rust[name] / rate:6.1f}x")
+            r1 = next(r[3] for r in rows if r[0] == name and r[1] == "rust/1t")
+            print(f"  {name:34s} rust / numpy   = {rust[name] / rate:6.1f}x   (rust 1 thread / numpy: {r1 / rate:5.1f}x)")
     full = rust["Q1+Q2+Q3 full"]
     red = rust[f"Q1+Q2+Q3 reduce_dims={args.reduce_dims}"]
     np_full = next(r[3] for r in rows if r[0] == "Q1+Q2+Q3 full" and r[1].startswith("numpy"))
