@@ -30,6 +30,11 @@
 //!   dimensions, an inline one for tiny blocks, the two checked against each other); a pivot
 //!   that rounding pushes below `reg · 1e-3` is clamped there, so no gain is ever NaN or ±inf.
 
+// `!(x > y)` is deliberate throughout: it is true for NaN too, which is clamped, never passed on.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Index loops mirror the matrix formulas (Cholesky, covariance blocks).
+#![allow(clippy::needless_range_loop)]
+
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{
     cholesky_in_place, cholesky_in_place_scratch, LltRegularization,

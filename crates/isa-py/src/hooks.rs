@@ -215,7 +215,7 @@ pub fn split_search<'py>(
     let n = r.off.shape()[0];
     let fa = f32_2d(features, "features", Some(n), None)?;
     let c = fa.shape()[1];
-    if n_thresholds == 0 || !(reg > 0.0) {
+    if n_thresholds == 0 || reg.is_nan() || reg <= 0.0 {
         return Err(param_err("n_thresholds must be >= 1 and reg > 0"));
     }
     let fs = fa.as_slice()?;
