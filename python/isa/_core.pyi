@@ -162,8 +162,9 @@ def split_search(
 # Keyword parameters of predict / image_votes: stride (4), min_depth (0 m), max_depth (None m),
 # min_leaf_weight (0) and the mode-finding ones shared with find_modes: position_bandwidth
 # (0.08 m), rotation_bandwidth (0.5 rad), max_hypotheses (5), nms_radius (0.25 m), max_seeds
-# (64), max_iterations (50), rotations_per_position (1), rotation_candidates (128),
-# rotation_eval_votes (2048), min_support (3). Unknown names raise InvalidParameterError.
+# (64), max_iterations (50), rotations_per_position (1), rotation_candidates (64),
+# rotation_eval_votes (1024), min_support (3), coarse_votes (32768), refine_modes (16),
+# refine_votes (4096); see isa_core::vote::VoteParams. Unknown names raise InvalidParameterError.
 
 #: Version of the training-set (.isat) file format written by ``write_trainset``.
 TRAINSET_FORMAT_VERSION: int

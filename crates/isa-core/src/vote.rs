@@ -25,15 +25,23 @@
 //!    `max(nms_radius, h / 4)`.
 //! 4. **Rotation mode** among the votes within `h` of each position mode, each weighted by its
 //!    position kernel: the densest of a strided subsample of candidate votes (a medoid-like start,
-//!    robust to outliers), then mean-shift on the sphere of quaternions with every vote's sign
-//!    aligned to the current estimate (the weighted chordal mean). Optional further rotation modes
-//!    per position ([`VoteParams::rotations_per_position`]) for symmetric objects.
+//!    robust to outliers; [`VoteParams::rotation_candidates`] candidates scored on
+//!    [`VoteParams::rotation_eval_votes`] votes), then mean-shift on the sphere of quaternions with
+//!    every vote's sign aligned to the current estimate (the weighted chordal mean; iterations on
+//!    at most [`VoteParams::refine_votes`] votes, the score over all). Optional further rotation
+//!    modes per position ([`VoteParams::rotations_per_position`]) for symmetric objects.
 //! 5. **Ranking** by the joint density at the mode ([`Hypothesis::score`], the unnormalised
 //!    `p(Δx, θ | I)` of Eq. 13), ties broken deterministically; the first
 //!    [`VoteParams::max_hypotheses`] are returned.
 //!
 //! Everything is deterministic: float reductions run in a fixed order, parallel work is per
-//! seed/mode and collected in order, so results do not depend on the number of threads.
+//! seed/mode/chunk and collected in order, so results do not depend on the number of threads.
+//! (Permuting the input changes results only by summation order and by which votes the
+//! even-stride subsamples pick: well under a millimetre and a tenth of a degree in the tests.)
+//!
+//! Cost: one validation pass and one gathering pass over all votes, a hash grid over at most
+//! `coarse_votes` of them, and work per mode bounded by `refine_votes`; `benches/vote.rs`
+//! measures it (about 4-5 ms of one core for 10^5 votes).
 
 pub mod predict;
 pub mod synth;

@@ -6,7 +6,8 @@
 //! `isa_core::vote::PredictParams` (`stride`, `min_depth`, `max_depth`, `min_leaf_weight`) and of
 //! `VoteParams` (`position_bandwidth`, `rotation_bandwidth`, `max_hypotheses`, `nms_radius`,
 //! `max_seeds`, `max_iterations`, `rotations_per_position`, `rotation_candidates`,
-//! `rotation_eval_votes`, `min_support`); unknown names raise `InvalidParameterError`.
+//! `rotation_eval_votes`, `min_support`, `coarse_votes`, `refine_modes`, `refine_votes`); unknown
+//! names raise `InvalidParameterError`.
 
 use std::path::PathBuf;
 
@@ -17,7 +18,9 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use isa_core::trainset_io::{self, TrainSetData};
-use isa_core::vote::{self as core_vote, DepthImage, Hypothesis, Intrinsics, PoseVote, PredictParams, VoteParams};
+use isa_core::vote::{
+    self as core_vote, DepthImage, Hypothesis, Intrinsics, PoseVote, PredictParams, VoteParams,
+};
 
 use crate::arrays::{array, check_finite, depth_store, describe, parts as parts_arg};
 use crate::errors::{input_err, param_err, to_py};
@@ -37,7 +40,10 @@ fn json_value(key: &str, val: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> 
             .map(serde_json::Value::Number)
             .ok_or_else(|| param_err(format!("{key} must be finite, got {f}")))
     } else {
-        Err(param_err(format!("{key}: expected a number, got {}", describe(val))))
+        Err(param_err(format!(
+            "{key}: expected a number, got {}",
+            describe(val)
+        )))
     }
 }
 
@@ -168,9 +174,20 @@ fn hypotheses_to_py<'py>(py: Python<'py>, hyps: &[Hypothesis]) -> PyResult<Bound
     for h in hyps {
         let d = PyDict::new(py);
         let r: Vec<f64> = h.rotation.iter().flatten().copied().collect();
-        d.set_item("R", Array2::from_shape_vec((3, 3), r).expect("3x3").into_pyarray(py))?;
-        d.set_item("t", Array1::from_vec(h.translation.to_vec()).into_pyarray(py))?;
-        d.set_item("quaternion", Array1::from_vec(h.quaternion.to_vec()).into_pyarray(py))?;
+        d.set_item(
+            "R",
+            Array2::from_shape_vec((3, 3), r)
+                .expect("3x3")
+                .into_pyarray(py),
+        )?;
+        d.set_item(
+            "t",
+            Array1::from_vec(h.translation.to_vec()).into_pyarray(py),
+        )?;
+        d.set_item(
+            "quaternion",
+            Array1::from_vec(h.quaternion.to_vec()).into_pyarray(py),
+        )?;
         d.set_item("score", h.score)?;
         d.set_item("support", h.support)?;
         d.set_item("position_score", h.position_score)?;
@@ -244,14 +261,22 @@ pub fn image_votes<'py>(
     let d = PyDict::new(py);
     let pos: Vec<f32> = iv.votes.iter().flat_map(|v| v.position).collect();
     let rot: Vec<f32> = iv.votes.iter().flat_map(|v| v.rotation).collect();
-    let pix: Vec<i32> = iv.pixels.iter().flat_map(|p| [p[0] as i32, p[1] as i32]).collect();
+    let pix: Vec<i32> = iv
+        .pixels
+        .iter()
+        .flat_map(|p| [p[0] as i32, p[1] as i32])
+        .collect();
     d.set_item(
         "position",
-        Array2::from_shape_vec((n, 3), pos).expect("shape").into_pyarray(py),
+        Array2::from_shape_vec((n, 3), pos)
+            .expect("shape")
+            .into_pyarray(py),
     )?;
     d.set_item(
         "rotation",
-        Array2::from_shape_vec((n, 4), rot).expect("shape").into_pyarray(py),
+        Array2::from_shape_vec((n, 4), rot)
+            .expect("shape")
+            .into_pyarray(py),
     )?;
     d.set_item(
         "weight",
@@ -259,7 +284,9 @@ pub fn image_votes<'py>(
     )?;
     d.set_item(
         "pixel",
-        Array2::from_shape_vec((n, 2), pix).expect("shape").into_pyarray(py),
+        Array2::from_shape_vec((n, 2), pix)
+            .expect("shape")
+            .into_pyarray(py),
     )?;
     d.set_item(
         "tree",
@@ -306,7 +333,9 @@ pub fn find_modes<'py>(
         })
         .collect();
     if n_threads == Some(0) {
-        return Err(param_err("n_threads must be at least 1 (or None for all cores)"));
+        return Err(param_err(
+            "n_threads must be at least 1 (or None for all cores)",
+        ));
     }
     let hyps = py
         .detach(|| isa_core::forest::with_threads(n_threads, || core_vote::find_modes(&votes, &p))?)
@@ -354,13 +383,21 @@ pub fn write_trainset(
     let store = depth_store(images)?;
     let parts = parts_arg(parts)?;
     let n = parts.len();
-    let f32_vec = |obj: &Bound<'_, PyAny>, name: &str, cols: Option<usize>| -> PyResult<(Vec<f32>, usize)> {
-        let a = array::<f32>(obj, name, "float32", &[Some(n), cols])?;
-        let c = a.shape()[1];
-        Ok((a.as_slice().map_err(|e| input_err(format!("{name}: {e}")))?.to_vec(), c))
-    };
+    let f32_vec =
+        |obj: &Bound<'_, PyAny>, name: &str, cols: Option<usize>| -> PyResult<(Vec<f32>, usize)> {
+            let a = array::<f32>(obj, name, "float32", &[Some(n), cols])?;
+            let c = a.shape()[1];
+            Ok((
+                a.as_slice()
+                    .map_err(|e| input_err(format!("{name}: {e}")))?
+                    .to_vec(),
+                c,
+            ))
+        };
     let opt = |o: Option<&Bound<'_, PyAny>>, name: &str| -> PyResult<Option<(Vec<f32>, usize)>> {
-        o.filter(|o| !o.is_none()).map(|o| f32_vec(o, name, None)).transpose()
+        o.filter(|o| !o.is_none())
+            .map(|o| f32_vec(o, name, None))
+            .transpose()
     };
     let ts = TrainSetData {
         store,
@@ -394,7 +431,9 @@ pub fn read_trainset(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict
     let flat: Vec<i32> = ts.parts.iter().flatten().copied().collect();
     d.set_item(
         "parts",
-        Array2::from_shape_vec((p, 3), flat).expect("shape").into_pyarray(py),
+        Array2::from_shape_vec((p, 3), flat)
+            .expect("shape")
+            .into_pyarray(py),
     )?;
     d.set_item(
         "offsets",
@@ -408,9 +447,17 @@ pub fn read_trainset(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict
             .expect("shape")
             .into_pyarray(py),
     )?;
-    for (name, arr) in [("link_angles", ts.link_angles), ("node_offsets", ts.node_offsets)] {
+    for (name, arr) in [
+        ("link_angles", ts.link_angles),
+        ("node_offsets", ts.node_offsets),
+    ] {
         match arr {
-            Some((a, c)) => d.set_item(name, Array2::from_shape_vec((p, c), a).expect("shape").into_pyarray(py))?,
+            Some((a, c)) => d.set_item(
+                name,
+                Array2::from_shape_vec((p, c), a)
+                    .expect("shape")
+                    .into_pyarray(py),
+            )?,
             None => d.set_item(name, py.None())?,
         }
     }
