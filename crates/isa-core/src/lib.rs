@@ -19,7 +19,6 @@ pub mod rng;
 pub mod splitter;
 pub mod trainset_io;
 pub mod tree;
-/// Vote aggregation, mode finding and whole-image prediction (inference helper's module).
 pub mod vote;
 
 pub use depth::{sample_parts, DepthStore, Part};
