@@ -207,17 +207,24 @@ pub fn npy_decode(bytes: &[u8]) -> std::result::Result<NpyArray, String> {
     }
     let (hlen, start) = match bytes[6] {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize, 12),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize,
+            12,
+        ),
         v => return Err(format!("unsupported .npy version {v}")),
     };
-    let header = bytes.get(start..start + hlen).ok_or("truncated .npy header")?;
+    let header = bytes
+        .get(start..start + hlen)
+        .ok_or("truncated .npy header")?;
     let header = std::str::from_utf8(header).map_err(|_| "non-UTF-8 .npy header")?;
     let field = |key: &str| -> std::result::Result<&str, String> {
         let at = header
             .find(&format!("'{key}'"))
             .ok_or(format!(".npy header lacks '{key}'"))?;
         let rest = &header[at + key.len() + 2..];
-        let colon = rest.find(':').ok_or(format!(".npy header: no value for '{key}'"))?;
+        let colon = rest
+            .find(':')
+            .ok_or(format!(".npy header: no value for '{key}'"))?;
         Ok(rest[colon + 1..].trim_start())
     };
     let descr = field("descr")?;
@@ -254,7 +261,9 @@ pub fn npy_decode(bytes: &[u8]) -> std::result::Result<NpyArray, String> {
         .iter()
         .try_fold(1usize, |a, &d| a.checked_mul(d))
         .ok_or(".npy shape overflows")?;
-    let nbytes = count.checked_mul(dtype.size()).ok_or(".npy shape overflows")?;
+    let nbytes = count
+        .checked_mul(dtype.size())
+        .ok_or(".npy shape overflows")?;
     let data = &bytes[start + hlen..];
     if data.len() != nbytes {
         return Err(format!(
@@ -274,9 +283,17 @@ impl NpyArray {
     /// The elements, checking the dtype.
     pub fn to_vec<T: NpyElement>(&self) -> std::result::Result<Vec<T>, String> {
         if self.dtype != T::DTYPE {
-            return Err(format!("expected {}, got {}", T::DTYPE.name(), self.dtype.name()));
+            return Err(format!(
+                "expected {}, got {}",
+                T::DTYPE.name(),
+                self.dtype.name()
+            ));
         }
-        Ok(self.data.chunks_exact(T::DTYPE.size()).map(T::from_le).collect())
+        Ok(self
+            .data
+            .chunks_exact(T::DTYPE.size())
+            .map(T::from_le)
+            .collect())
     }
 }
 
@@ -339,7 +356,8 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
     let bad = |reason: String| IsaError::InvalidInput(format!("training set {path}: {reason}"));
     if bytes.len() < 8 || &bytes[..8] != MAGIC {
         return Err(bad(
-            "not an isa training-set file (bad magic; write it with isa._core.write_trainset)".into(),
+            "not an isa training-set file (bad magic; write it with isa._core.write_trainset)"
+                .into(),
         ));
     }
     if bytes.len() < 24 {
@@ -353,7 +371,9 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
     }
     let (body, tail) = bytes.split_at(bytes.len() - 8);
     if fnv1a64(body) != u64::from_le_bytes(tail.try_into().unwrap()) {
-        return Err(bad("checksum mismatch (the file is truncated or corrupted)".into()));
+        return Err(bad(
+            "checksum mismatch (the file is truncated or corrupted)".into(),
+        ));
     }
     let n_entries = u32::from_le_bytes(body[12..16].try_into().unwrap()) as usize;
     let mut at = 16usize;
@@ -382,7 +402,10 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
         }
         match (kind, name.as_str()) {
             (1, "metadata") => {
-                metadata = Some(String::from_utf8(data.to_vec()).map_err(|_| bad("entry metadata: not UTF-8".into()))?)
+                metadata = Some(
+                    String::from_utf8(data.to_vec())
+                        .map_err(|_| bad("entry metadata: not UTF-8".into()))?,
+                )
             }
             (0, _) => arrays.push((
                 name.clone(),
@@ -401,14 +424,19 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
         };
         if !ok {
             let want = cols.map_or("(n, k)".to_string(), |c| format!("(n, {c})"));
-            return Err(bad(format!("entry {name}: expected shape {want}, got {:?}", a.shape)));
+            return Err(bad(format!(
+                "entry {name}: expected shape {want}, got {:?}",
+                a.shape
+            )));
         }
         Ok(())
     };
 
     let sizes_a = need("image_sizes")?;
     vec_of("image_sizes", sizes_a, Some(2))?;
-    let sizes: Vec<i32> = sizes_a.to_vec().map_err(|e| bad(format!("entry image_sizes: {e}")))?;
+    let sizes: Vec<i32> = sizes_a
+        .to_vec()
+        .map_err(|e| bad(format!("entry image_sizes: {e}")))?;
     let depth_a = need("depth")?;
     if depth_a.shape.len() != 1 {
         return Err(bad(format!(
@@ -416,13 +444,17 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
             depth_a.shape
         )));
     }
-    let depth: Vec<u16> = depth_a.to_vec().map_err(|e| bad(format!("entry depth: {e}")))?;
+    let depth: Vec<u16> = depth_a
+        .to_vec()
+        .map_err(|e| bad(format!("entry depth: {e}")))?;
     let mut store = DepthStore::new();
     let mut off = 0usize;
     for (i, hw) in sizes.chunks_exact(2).enumerate() {
         let (h, w) = (hw[0], hw[1]);
         if h <= 0 || w <= 0 {
-            return Err(bad(format!("entry image_sizes: image {i} has size {h}x{w}")));
+            return Err(bad(format!(
+                "entry image_sizes: image {i} has size {h}x{w}"
+            )));
         }
         let n = h as usize * w as usize;
         let px = depth.get(off..off + n).ok_or_else(|| {
@@ -431,7 +463,9 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
                 depth.len()
             ))
         })?;
-        store.push(w as usize, h as usize, px).map_err(|e| bad(e.to_string()))?;
+        store
+            .push(w as usize, h as usize, px)
+            .map_err(|e| bad(e.to_string()))?;
         off += n;
     }
     if off != depth.len() {
@@ -442,14 +476,19 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
     }
     let parts_a = need("parts")?;
     vec_of("parts", parts_a, Some(3))?;
-    let flat: Vec<i32> = parts_a.to_vec().map_err(|e| bad(format!("entry parts: {e}")))?;
+    let flat: Vec<i32> = parts_a
+        .to_vec()
+        .map_err(|e| bad(format!("entry parts: {e}")))?;
     let parts: Vec<Part> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let p = parts.len();
     let f32_entry = |name: &str, cols: Option<usize>| -> Result<Option<(Vec<f32>, usize)>> {
         let Some(a) = get(name) else { return Ok(None) };
         vec_of(name, a, cols)?;
         if a.shape[0] != p {
-            return Err(bad(format!("entry {name}: {} rows for {p} parts", a.shape[0])));
+            return Err(bad(format!(
+                "entry {name}: {} rows for {p} parts",
+                a.shape[0]
+            )));
         }
         Ok(Some((
             a.to_vec().map_err(|e| bad(format!("entry {name}: {e}")))?,
@@ -563,7 +602,10 @@ mod tests {
         );
         let a = npy_decode(&b).unwrap();
         assert_eq!(a.shape, vec![2, 3]);
-        assert_eq!(a.to_vec::<f32>().unwrap(), vec![1.5, -2.0, 3.0, 4.0, 5.0, 6.0]);
+        assert_eq!(
+            a.to_vec::<f32>().unwrap(),
+            vec![1.5, -2.0, 3.0, 4.0, 5.0, 6.0]
+        );
         assert!(a.to_vec::<i32>().is_err());
         let one = npy_decode(&npy_encode(&[7u16], &[1])).unwrap();
         assert_eq!(one.shape, vec![1]);
@@ -578,7 +620,9 @@ mod tests {
         f.extend_from_slice(&h);
         f.extend_from_slice(&[1, 0, 0, 0, 2, 0, 0, 0]);
         assert_eq!(npy_decode(&f).unwrap().to_vec::<i32>().unwrap(), vec![1, 2]);
-        assert!(npy_decode(&f[..f.len() - 1]).unwrap_err().contains("data bytes"));
+        assert!(npy_decode(&f[..f.len() - 1])
+            .unwrap_err()
+            .contains("data bytes"));
         let fortran = String::from_utf8_lossy(&f).replace("False", "True ");
         assert!(npy_decode(fortran.as_bytes()).is_err());
     }
