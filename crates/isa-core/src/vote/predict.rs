@@ -174,7 +174,7 @@ pub fn depth_m_to_mm(depth_m: &[f32]) -> Vec<u16> {
         .iter()
         .map(|&d| {
             let mm = (f64::from(d) * 1000.0).round();
-            if mm.is_finite() && mm >= 1.0 && mm <= 65535.0 {
+            if (1.0..=65535.0).contains(&mm) {
                 mm as u16
             } else {
                 0
