@@ -115,13 +115,13 @@ pub fn synthetic_images(n_images: usize, w: usize, h: usize, rng: &mut ChaCha8Rn
 fn traversal(c: &mut Criterion) {
     let mut group = c.benchmark_group("traversal");
     group.sample_size(10);
-    // Build the forest only when this benchmark is selected.
-    let mut setup: Option<(DepthStore, Vec<isa_core::Part>, Forest)> = None;
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let store = synthetic_images(40, 120, 100, &mut rng);
+    let parts = isa_core::sample_parts(&store, 2, None, 0).unwrap();
+    let n = parts.len();
+    // Train the forest only when this benchmark is selected.
+    let mut forest: Option<Forest> = None;
     let mut make = || {
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let store = synthetic_images(40, 120, 100, &mut rng);
-        let parts = isa_core::sample_parts(&store, 2, None, 0).unwrap();
-        let n = parts.len();
         let off: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.5..0.5)).collect();
         let rot: Vec<f32> = (0..n)
             .flat_map(|i| [1.0, 0.0, 0.0, (i % 13) as f32 * 0.05])
@@ -143,14 +143,12 @@ fn traversal(c: &mut Criterion) {
                 node_offsets: None,
             },
         };
-        let forest = Forest::fit(&params, &data, "{}", None).unwrap();
-        (store, parts, forest)
+        Forest::fit(&params, &data, "{}", None).unwrap()
     };
-    // 40 images of 120x100 on a stride of 2: ~108k parts.
-    group.throughput(Throughput::Elements(108_000));
+    group.throughput(Throughput::Elements(n as u64));
     group.bench_function("10_trees", |b| {
-        let (store, parts, forest) = setup.get_or_insert_with(&mut make);
-        b.iter(|| forest.apply(store, parts).unwrap())
+        let f = forest.get_or_insert_with(&mut make);
+        b.iter(|| f.apply(&store, &parts).unwrap())
     });
     group.finish();
 }

@@ -149,12 +149,19 @@ impl Forest {
         if t == 0 {
             return Ok(out);
         }
-        out.par_chunks_mut(t)
-            .zip(parts.par_iter())
-            .with_min_len(256)
-            .for_each(|(row, p)| {
-                for (o, tree) in row.iter_mut().zip(&self.trees) {
-                    *o = tree.leaf_of(store, p);
+        // Blocks of parts, tree by tree inside a block: a tree's upper nodes stay in cache.
+        const BLOCK: usize = 256;
+        out.par_chunks_mut(BLOCK * t)
+            .zip(parts.par_chunks(BLOCK))
+            .for_each(|(rows, ps)| {
+                let geoms: Vec<crate::features::PartGeom<'_>> = ps
+                    .iter()
+                    .map(|p| crate::features::PartGeom::new(store, p))
+                    .collect();
+                for (ti, tree) in self.trees.iter().enumerate() {
+                    for (k, g) in geoms.iter().enumerate() {
+                        rows[k * t + ti] = tree.leaf_of_geom(g);
+                    }
                 }
             });
         Ok(out)

@@ -77,19 +77,20 @@ impl Tree {
     /// Leaf index reached by a part (the part must be valid for `store`).
     #[inline]
     pub fn leaf_of(&self, store: &DepthStore, p: &Part) -> u32 {
-        let img = store.image(p[0] as usize);
-        let d = img.get(p[1], p[2]);
+        self.leaf_of_geom(&PartGeom::new(store, p))
+    }
+
+    /// Leaf index reached by a part whose geometry is resolved (see [`PartGeom`]); evaluates
+    /// exactly the features of [`Feature::eval`].
+    #[inline]
+    pub fn leaf_of_geom(&self, g: &PartGeom<'_>) -> u32 {
         let mut i = 0usize;
         loop {
             let nd = &self.nodes[i];
             if nd.is_leaf {
                 return nd.child;
             }
-            let f = if d == 0 {
-                0.0
-            } else {
-                nd.feature.eval_at(&img, p[1], p[2], d)
-            };
+            let f = g.eval(&nd.feature);
             i = nd.child as usize + (f >= nd.threshold) as usize;
         }
     }
