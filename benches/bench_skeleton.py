@@ -2,8 +2,9 @@
 
     python benches/bench_skeleton.py [--views 89] [--stride 4] [--figures DIR]
 
-Prints a table of wall times: the category template (procedural ground truth, calibrated on
-procedural chairs), curve-skeleton extraction, matching and the SSC (COMs + vote) for the first 28
+First prints, per category, the extracted skeletons' accuracy against the procedural ground truth
+(issue #3's two claims, seeds 0-11; needs no data). Then a table of wall times: the category
+template (procedural ground truth, calibrated on procedural chairs), curve-skeleton extraction, matching and the SSC (COMs + vote) for the first 28
 ModelNet10 chair train meshes at real size (the paper's protocol), then the rendering of their
 training views (another module's cost, shown for scale) and the annotation of every part of them
 (``build_training_set``), against a direct per-part Python loop on a subset as the baseline of the
@@ -52,12 +53,41 @@ def _loop_annotate(frame, stride: int, limit: int) -> int:
     return len(out)
 
 
+def ground_truth_table(seeds=range(12)) -> None:
+    """Issue #3's claims on procedural instances (medial ground truth): per category, the mean over
+    instances of the mean distance from extracted nodes to the true skeleton's links, and how many
+    instances have every true junction/endpoint within 10% of the diameter of an extracted node."""
+    from isa.procedural import generate
+    from isa.skeleton import extract_skeleton
+
+    def seg_dist(P, A, B):
+        d = B - A
+        t = np.clip(np.einsum("nmk,mk->nm", P[:, None] - A[None], d) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
+        return np.linalg.norm(P[:, None] - (A[None] + t[..., None] * d[None]), axis=2).min(1)
+
+    print("\n| category | mean node distance (% diameter) | key points all within 10% | worst key point (%) | s |\n|---|---:|---:|---:|---:|")
+    for cat in ("chair", "table", "bed", "toilet"):
+        t0 = time.perf_counter()
+        means, keys = [], []
+        for s in seeds:
+            o = generate(cat, s)
+            gt, g = o.skeleton, extract_skeleton(o.mesh)
+            diam = float(np.linalg.norm(o.mesh.extents))
+            means.append(seg_dist(g.nodes, gt.nodes[gt.links[:, 0]], gt.nodes[gt.links[:, 1]]).mean() / diam)
+            deg = np.bincount(gt.links.ravel(), minlength=len(gt.nodes))
+            keys.append(np.linalg.norm(gt.nodes[deg != 2][:, None] - g.nodes[None], axis=2).min(1).max() / diam)
+        keys = np.array(keys)
+        print(f"| {cat} (seeds {min(seeds)}-{max(seeds)}) | {np.mean(means) * 100:.1f} | {(keys < 0.10).sum()}/{len(keys)} "
+              f"| {keys.max() * 100:.1f} | {time.perf_counter() - t0:.1f} |")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--views", type=int, default=89, help="training views per instance (paper: 89)")
     ap.add_argument("--stride", type=int, default=4, help="part grid stride in pixels")
     ap.add_argument("--figures", type=Path, default=None, help="write the skeleton figures into this folder")
     a = ap.parse_args()
+    ground_truth_table()
     mn = SHARED / "modelnet10"
     if not mn.is_dir():
         print(f"SKIP bench_skeleton: real data not found at {mn} (set ISA_SHARED_DATA or check out ../shared)")

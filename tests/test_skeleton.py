@@ -111,10 +111,15 @@ def test_solid_fill_and_centre_of_mass_of_holed_box():
     np.testing.assert_allclose(solid_centre_of_mass(L), truth, atol=0.012)
 
 
-def _gt_scores(category: str, seeds):
+def _gt_scores(category: str, seeds, keep=None):
+    """Per instance: the mean distance from the extracted nodes to the true skeleton (its links as
+    segments) and the distance from the worst-served true junction/endpoint to its nearest
+    extracted node, both as fractions of the diameter (the bounding-box diagonal)."""
     means, keys = [], []
     for s in seeds:
         o = generate(category, s)
+        if keep is not None and not keep(o):
+            continue
         gt = o.skeleton
         g = extract_skeleton(o.mesh)
         diam = float(np.linalg.norm(o.mesh.extents))
@@ -125,24 +130,51 @@ def _gt_scores(category: str, seeds):
     return np.array(means), np.array(keys)
 
 
-def test_procedural_chairs_and_tables_against_ground_truth():
-    # Issue #3's claims. Measured over seeds 0-7: mean node distance to the true skeleton 3.6%
-    # (chairs) and 5.0% (tables; pedestal tables, whose true "legs" are not physical members,
-    # reach 10%) of the diameter, 4.3% together; worst true junction/endpoint 9.1% / 8.4%.
-    m_c, k_c = _gt_scores("chair", range(8))
-    m_t, k_t = _gt_scores("table", range(8))
-    assert np.concatenate([m_c, m_t]).mean() < 0.05
-    assert k_c.max() < 0.10 and k_t.max() < 0.10
+# Issue #3's claims against the procedural ground truth (medial nodes, see isa.procedural): the
+# extracted nodes lie within 5% of the diameter of the true skeleton on average, and every true
+# junction/endpoint has an extracted node within 10%. Numbers in the comments: seeds 0-11 (the
+# tests' seeds, a subset is run) and held-out seeds (50, 0-7), mean / instances whose every key
+# point is within 10%.
 
 
-def test_procedural_beds_and_toilets_bounded():
-    # Beds and toilets put ground-truth nodes on surfaces (mattress top, rim, floor corners of a
-    # solid base), which no medial skeleton reaches: measured mean 9.6% / 9.7%, worst key point
-    # 12.4% / 14.9% (seeds 0-7). These bounds catch regressions; they are not the 5% claim.
-    m_b, k_b = _gt_scores("bed", [1])  # measured 10.7%, 9.7%
-    m_o, k_o = _gt_scores("toilet", [1])  # measured 10.4%, 13.1%
-    assert m_b.mean() < 0.12 and m_o.mean() < 0.12
-    assert k_b.max() < 0.16 and k_o.max() < 0.16
+def test_procedural_chairs_meet_both_claims():
+    # Measured: 3.7%, 12/12 (worst key 9.1%); held-out 3.4%, 7/8 (a tapered leg below a stretcher
+    # is lost: 16%).
+    means, keys = _gt_scores("chair", range(6))
+    assert means.mean() < 0.05, means
+    assert keys.max() < 0.10, keys
+
+
+def test_procedural_tables_meet_both_claims_on_legs():
+    # Tables on legs: measured 4.0%, 10/10 (held-out 4.4%, 5/5). Pedestal and trestle tables meet
+    # the junction/endpoint claim (worst 8.3%) but not the mean: their template "legs" (top corner
+    # -> foot) are not physical members, while the column, frames and stretcher that are get
+    # extracted (10-11% each; all tables together 5.1% on seeds 0-11, 6.7% held-out).
+    legs = lambda o: o.params["base"] == "legs"
+    m_l, k_l = _gt_scores("table", range(6), keep=legs)
+    assert len(m_l) >= 4 and m_l.mean() < 0.05 and k_l.max() < 0.10, (m_l, k_l)
+    m_o, k_o = _gt_scores("table", [4, 10])  # pedestals
+    assert k_o.max() < 0.10 and m_o.mean() < 0.12, (m_o, k_o)
+
+
+def test_procedural_beds_bounded():
+    # NOT the claim: measured 7.7%, 9/12 (worst key 12.4%); held-out 7.7%, 5/8. The mattress and
+    # its base are one wide slab, whose thinning + coverage skeleton is a tree spread over the slab
+    # (and headboard slats are members outside the template), not the template's centre-to-corner
+    # X; misses are floor corners of solid platform bases and single legs. These bounds catch
+    # regressions.
+    means, keys = _gt_scores("bed", range(4))  # measured 7.8%, worst key 10.1%
+    assert means.mean() < 0.09, means
+    assert keys.max() < 0.12, keys
+
+
+def test_procedural_toilets_bounded():
+    # NOT the claim: measured 8.1%, 4/12 (worst key 13.7%); held-out 8.2%, 3/8. The bowl is a thick
+    # cup whose coverage branches spread through its walls; misses are the floor ends of the
+    # pedestal and rear body and rim points. These bounds catch regressions.
+    means, keys = _gt_scores("toilet", range(4))  # measured 7.9%, worst key 12.7%
+    assert means.mean() < 0.09, means
+    assert keys.max() < 0.14, keys
 
 
 def test_errors_name_the_argument():

@@ -14,10 +14,18 @@ arms, back panels/slats/rails, headboard/footboard styles, bed legs vs platform,
 pedestal tables, round/elongated toilet bowls, skirted bases, seats and lids ...).
 
 Each category has ONE skeleton template (:data:`SKELETON_TEMPLATES`): the same node names and
-links for every instance, so a matched skeleton can be scored node by node. Nodes sit on the
-structure's axis (leg feet on the floor, seat/top corners at the leg tops, back/headboard/tank tops
-at their upper edges). A link is the template's; for a few styles a link is not a physical member
-(e.g. a pedestal table's top corner to its base's spoke tip); ``skeleton.meta["style"]`` says which.
+links for every instance, so a matched skeleton can be scored node by node. Nodes are medial, where
+a curve skeleton of the solid goes: leg feet at the bottom of the leg's axis (on the floor, or on a
+sled runner's / trestle foot bar's / pedestal spoke's axis a few cm above it); a node on a slab at
+the slab's mid-thickness (seat, table top - with the apron or trestle bar joined under it -, the
+bed's body of mattress on frame or base); seat/top corners over the leg tops; back and headboard
+tops at the posts' axis tops (a panel's top corners); toilet rim nodes mid-wall just under the rim,
+``rim_centre`` in the solid under the bowl's cavity where its walls meet the pedestal, the tank's
+top corners 3 cm inside and ``tank_top_centre`` on its vertical mid-line where the corners' medial
+branches meet (half the tank's width or height under its top). Solid platform bed bases keep their
+floor corners, a toilet its foot's front and rear body's back on the floor. A link is the
+template's; for a few styles a link is not a physical member (e.g. a pedestal table's top corner to
+its base's spoke tip); ``skeleton.meta["style"]`` says which.
 """
 
 from __future__ import annotations
@@ -237,8 +245,7 @@ def _chair(rng: np.random.Generator):
     if style == "sled":
         for sx in (-1, 1):
             parts.append(_strut(feet[(sx, -1)] - [0, 0.02, 0], feet[(sx, 1)] + [0, 0.02, 0], lr))
-        # Feet on the floor under the runner ends.
-        feet = {key: f - [0, 0, lr] for key, f in feet.items()}
+        # The feet stay at the bottom of the legs' axes, on the runners' axes (lr above the floor).
     elif p["stretchers"]:
         zs = _u(rng, 0.10, 0.22)
         at = {key: feet[key] + (tops[key] - feet[key]) * (zs - feet[key][2]) / (tops[key][2] - feet[key][2]) for key in tops}
@@ -317,6 +324,7 @@ def _bed(rng: np.random.Generator):
     if p["base"] == "legs":
         rail = _u(rng, 0.08, 0.22)
         parts.append(_box([-Wf / 2, -Lf / 2, zf - rail], [Wf / 2, Lf / 2, zf]))
+        z_body = zf - rail  # bottom of the slab that frame and mattress make together
         fx, fy = Wf / 2 - leg_r, Lf / 2 - leg_r
         floor = {(sx, sy): np.array([sx * fx, sy * fy, 0.0]) for sx in (-1, 1) for sy in (-1, 1)}
         sq = bool(rng.random() < 0.6)
@@ -332,6 +340,7 @@ def _bed(rng: np.random.Generator):
         if plinth > 0:
             parts.append(_box([-Wf / 2 + inset, -Lf / 2 + inset, 0], [Wf / 2 - inset, Lf / 2 - inset, plinth + 0.001]))
         floor = {(sx, sy): np.array([sx * (Wf / 2 - inset), sy * (Lf / 2 - inset), 0.0]) for sx in (-1, 1) for sy in (-1, 1)}
+        z_body = 0.0  # the base is a solid block from the floor (on a plinth) up to the mattress
     p["headboard_height"] = min(p["headboard_height"], 1.38 - zm)  # beds stay under ~1.4 m [SIZES]
     zh = zm + p["headboard_height"]
     hw = Wf / 2 + _u(rng, 0.0, 0.05)
@@ -358,10 +367,11 @@ def _bed(rng: np.random.Generator):
         cx = (i - (p["pillows"] - 1) / 2) * Wm / max(p["pillows"], 1)
         parts.append(_slab((cx, Lm / 2 - 0.25), w / 2, 0.18, zm - 0.01, zm + _u(rng, 0.08, 0.15), power=3.0))
     ix, iy = Wm / 2 - 0.1, Lm / 2 - 0.1
+    zc = (z_body + zm) / 2  # mid-thickness of the bed's body (mattress on its frame or base)
     nodes = {
-        "mattress_centre": np.array([0.0, 0.0, zm]),
-        "mattress_foot_left": np.array([-ix, -iy, zm]), "mattress_foot_right": np.array([ix, -iy, zm]),
-        "mattress_head_left": np.array([-ix, iy, zm]), "mattress_head_right": np.array([ix, iy, zm]),
+        "mattress_centre": np.array([0.0, 0.0, zc]),
+        "mattress_foot_left": np.array([-ix, -iy, zc]), "mattress_foot_right": np.array([ix, -iy, zc]),
+        "mattress_head_left": np.array([-ix, iy, zc]), "mattress_head_right": np.array([ix, iy, zc]),
         "floor_foot_left": floor[(-1, -1)], "floor_foot_right": floor[(1, -1)],
         "floor_head_left": floor[(-1, 1)], "floor_head_right": floor[(1, 1)],
         "headboard_top_left": np.array([-tx, y_head, zh]), "headboard_top_right": np.array([tx, y_head, zh]),
@@ -391,6 +401,7 @@ def _table(rng: np.random.Generator):
     power = {"rect": 30.0, "rounded": 4.0, "round": 2.0}[shape]
     parts = [_slab((0, 0), Wd / 2, L / 2, H - T, H, power, k=48)]
     zt = H - T
+    support = 0.0  # thickness of what is joined under the top at its corners (apron, trestle bar)
     if base == "legs":
         lr = _u(rng, 0.015, 0.04)
         inset = _u(rng, 0.01, 0.12)
@@ -407,6 +418,7 @@ def _table(rng: np.random.Generator):
         if rng.random() < 0.5:  # apron under the top
             ah = _u(rng, 0.05, 0.12)
             parts.append(_box([-lx, -ly, zt - ah], [lx, ly, zt + 0.001]))
+            support = ah  # top and apron are one slab over the legs
         if kind == "coffee" and rng.random() < 0.4:  # lower shelf
             zs = _u(rng, 0.08, 0.15)
             parts.append(_box([-lx, -ly, zs], [lx, ly, zs + 0.02]))
@@ -422,20 +434,25 @@ def _table(rng: np.random.Generator):
             parts.append(_box([-fw, sy * py - th / 2, zt - 0.06], [fw, sy * py + th / 2, zt + 0.001]))
         parts.append(_box([-0.03, -py, 0.2], [0.03, py, 0.28]))
         tops = {(sx, sy): np.array([sx * fw, sy * py, zt]) for sx in (-1, 1) for sy in (-1, 1)}
-        feet = {k: t * [1, 1, 0] for k, t in tops.items()}
+        feet = {k: t * [1, 1, 0] + [0, 0, 0.03] for k, t in tops.items()}  # foot bars' ends, on their axis
+        support = 0.06  # the frames' top bars under the top's corners
     else:  # pedestal: a column and a four-spoke foot, spokes pointing at the corners
         cr = _u(rng, 0.03, 0.09)
         parts.append(_strut([0, 0, 0.03], [0, 0, zt + 0.002], cr, cr * _u(rng, 0.6, 1.2), k=16))
         reach = min(Wd, L) / 2 * _u(rng, 0.55, 0.85)
         d = reach / np.sqrt(2)
-        feet = {(sx, sy): np.array([sx * d, sy * d, 0.0]) for sx in (-1, 1) for sy in (-1, 1)}
+        feet = {(sx, sy): np.array([sx * d, sy * d, 0.03]) for sx in (-1, 1) for sy in (-1, 1)}  # spoke tips
         for f in feet.values():
-            parts.append(_strut([0, 0, 0.03], f + [0, 0, 0.03], 0.03, 0.02, square=True))
+            parts.append(_strut([0, 0, 0.03], f, 0.03, 0.02, square=True))
         c = 0.7 / np.sqrt(2)
         tops = {(sx, sy): np.array([sx * c * Wd / 2, sy * c * L / 2, zt]) for sx in (-1, 1) for sy in (-1, 1)}
-    nodes = {"top_centre": np.array([0.0, 0.0, H - T / 2])}
+    # Top nodes at the mid-thickness of the slab they sit in: the top alone, or the top and the
+    # apron (a solid block over the legs) / a trestle's top bar under the corners.
+    z_corner = (H + zt - support) / 2
+    z_centre = z_corner if base == "legs" else H - T / 2
+    nodes = {"top_centre": np.array([0.0, 0.0, z_centre])}
     for (sx, sy), name in (((-1, -1), "front_left"), ((1, -1), "front_right"), ((-1, 1), "back_left"), ((1, 1), "back_right")):
-        nodes["top_" + name] = tops[(sx, sy)] + [0, 0, T / 2]
+        nodes["top_" + name] = tops[(sx, sy)] * [1, 1, 0] + [0, 0, z_corner]
         nodes["foot_" + name] = feet[(sx, sy)]
     return parts, nodes, p
 
@@ -502,13 +519,23 @@ def _toilet(rng: np.random.Generator):
         lid.apply_transform(trimesh.transformations.rotation_matrix(-0.08, [1, 0, 0]))
         lid.apply_translation([0, yl, zr + 0.03])
         parts.append(lid)
+    # Medial nodes. The rim nodes sit in the rim's wall, midway between its outer and inner edges
+    # and just under its top; rim_centre is where the bowl's walls meet the pedestal, in the solid
+    # just under the bottom of the bowl's cavity (the centre of the opening is air). The tank is a
+    # thick plate seen from the front: its top corners, and the point where the corners' medial
+    # branches meet its vertical mid-line (half the tank's width, or half its height, under the top).
+    wall = 0.89  # mid-wall, between the outer (1.0) and inner (0.78-0.8) rim rings
+    zw = zr - 0.02
+    z_joint = zr - 0.2 - 0.03
+    tank_h = ztt - ztb
     nodes = {
-        "rim_centre": np.array([0.0, yc, zr]),
-        "rim_front": np.array([0.0, yc - ry, zr]), "rim_left": np.array([-rx, yc, zr]),
-        "rim_right": np.array([rx, yc, zr]), "rim_back": np.array([0.0, yc + ry, zr]),
+        "rim_centre": np.array([0.0, yc - 0.03, z_joint]),
+        "rim_front": np.array([0.0, yc - 0.005 - wall * ry, zw]), "rim_left": np.array([-wall * rx, yc - 0.005, zw]),
+        "rim_right": np.array([wall * rx, yc - 0.005, zw]), "rim_back": np.array([0.0, yc - 0.005 + wall * ry, zw]),
         "floor_front": np.array([0.0, yf - ry * foot, 0.0]), "floor_back": np.array([0.0, y_back, 0.0]),
-        "tank_bottom_centre": np.array([0.0, yt, ztb]), "tank_top_centre": np.array([0.0, yt, ztt]),
-        "tank_top_left": np.array([-Wt / 2 + 0.03, yt, ztt]), "tank_top_right": np.array([Wt / 2 - 0.03, yt, ztt]),
+        "tank_bottom_centre": np.array([0.0, yt, ztb]),
+        "tank_top_centre": np.array([0.0, yt, ztt - min(Wt, tank_h) / 2]),
+        "tank_top_left": np.array([-Wt / 2 + 0.03, yt, ztt - 0.03]), "tank_top_right": np.array([Wt / 2 - 0.03, yt, ztt - 0.03]),
     }
     p["bowl_length"] = Lb
     return parts, nodes, p
