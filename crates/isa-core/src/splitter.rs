@@ -59,9 +59,10 @@ pub struct SplitResult {
 
 /// Sufficient statistics of a node's scored parts.
 pub struct NodeData {
-    /// `n × m` per-part statistics of the centred targets (f32: summed in f32 within blocks
-    /// of [`F32_BLOCK`] parts, then in f64).
-    pub z: Vec<f32>,
+    /// `n × z_stride(m)` per-part statistics of the centred targets in f32 (summed in f32
+    /// within blocks of [`F32_BLOCK`] parts, then in f64), a count column of 1.0 at `m`, zero
+    /// padding; rows 32-byte aligned.
+    z: AlignedF32,
     pub parent: Vec<f64>,
     pub h_parent: TermValues,
     pub n: usize,
@@ -71,6 +72,7 @@ impl NodeData {
     pub fn gather(crit: &Criterion, targets: &Targets, subset: &[u32]) -> Self {
         let lay = &crit.layout;
         let (d, m, n) = (lay.dim, lay.m, subset.len());
+        let mp = z_stride(m);
         let mut mean = vec![0f64; d];
         for &p in subset {
             for (mu, &v) in mean.iter_mut().zip(targets.row(p as usize)) {
@@ -80,11 +82,11 @@ impl NodeData {
         for mu in &mut mean {
             *mu /= n.max(1) as f64;
         }
-        let mut z = vec![0f32; n * m];
+        let mut z = AlignedF32::zeros(n * mp);
         let mut x = vec![0f64; d];
         let mut zr64 = vec![0f64; m];
         let mut parent = vec![0f64; m];
-        for (zr, &p) in z.chunks_exact_mut(m).zip(subset) {
+        for (zr, &p) in z.as_mut_slice().chunks_exact_mut(mp).zip(subset) {
             for ((o, &v), mu) in x.iter_mut().zip(targets.row(p as usize)).zip(&mean) {
                 *o = v as f64 - mu;
             }
@@ -93,6 +95,7 @@ impl NodeData {
                 *a += b;
                 *o = *b as f32;
             }
+            zr[m] = 1.0;
         }
         let mut scratch = Vec::new();
         let h_parent = crit.entropies(&parent, n.max(1), &mut scratch);
@@ -110,8 +113,6 @@ pub fn thresholds_for(n: usize, k: usize) -> usize {
     k.min(n.div_ceil(8)).max(1)
 }
 
-const CAND_GROUP: usize = 2;
-
 /// Bin of feature value `f` for thresholds padded to 16 with +inf: `#{k : τ_k ≤ f}`.
 #[inline(always)]
 fn bin16(thr: &[f32; 16], f: f32) -> u8 {
@@ -127,93 +128,221 @@ fn bin16(thr: &[f32; 16], f: f32) -> u8 {
 /// far below the ridge; the f64 criterion hook is the reference).
 pub const F32_BLOCK: usize = 128;
 
-/// `acc[bin] += z_row` over the candidates `c0..c0 + accs.len()`, tiled by blocks of parts so
-/// a block of `z` rows is reused from cache by every candidate of the group (`bins` is
-/// part-major with `nc` candidates per part). Summation order per element is fixed (parts in
-/// order within a block, blocks in order) whatever the SIMD width or thread count, so results
-/// are bit-identical on every CPU path.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn accumulate_group_body(
-    z: &[f32],
-    m: usize,
-    n: usize,
-    bins: &[u8],
-    nc: usize,
-    c0: usize,
-    accs: &mut [Vec<f64>],
-    cnts: &mut [Vec<u32>],
-) {
-    let nb = accs.iter().map(|a| a.len() / m.max(1)).max().unwrap_or(0);
-    let mut part = vec![0f32; nb * m];
-    let mut touched = vec![false; nb];
-    let mut j0 = 0;
-    while j0 < n {
-        let j1 = (j0 + F32_BLOCK).min(n);
-        for (gi, (acc, cnt)) in accs.iter_mut().zip(cnts.iter_mut()).enumerate() {
-            let c = c0 + gi;
-            let nbc = acc.len() / m.max(1);
-            for j in j0..j1 {
-                let bin = bins[j * nc + c] as usize;
-                cnt[bin] += 1;
-                touched[bin] = true;
-                let zr = &z[j * m..(j + 1) * m];
-                let pr = &mut part[bin * m..(bin + 1) * m];
-                for (a, v) in pr.iter_mut().zip(zr) {
-                    *a += v;
-                }
-            }
-            for b in 0..nbc {
-                if touched[b] {
-                    touched[b] = false;
-                    let pr = &mut part[b * m..(b + 1) * m];
-                    for (a, v) in acc[b * m..(b + 1) * m].iter_mut().zip(pr.iter_mut()) {
-                        *a += *v as f64;
-                        *v = 0.0;
-                    }
-                }
-            }
-        }
-        j0 = j1;
+/// 32-byte aligned lane of 8 floats (rows of `z` and of the f32 partial sums start on one).
+#[derive(Clone, Copy, Default)]
+#[repr(C, align(32))]
+struct Lane([f32; 8]);
+
+/// A zero-initialised, 32-byte aligned `f32` buffer of `len` (a multiple of 8) values.
+struct AlignedF32(Vec<Lane>);
+
+impl AlignedF32 {
+    fn zeros(len: usize) -> Self {
+        debug_assert!(len % 8 == 0);
+        AlignedF32(vec![Lane::default(); len / 8])
+    }
+    fn as_slice(&self) -> &[f32] {
+        // SAFETY: `Lane` is `repr(C)` around `[f32; 8]` with no padding (32 bytes).
+        unsafe { std::slice::from_raw_parts(self.0.as_ptr() as *const f32, self.0.len() * 8) }
+    }
+    fn as_mut_slice(&mut self) -> &mut [f32] {
+        // SAFETY: as above.
+        unsafe { std::slice::from_raw_parts_mut(self.0.as_mut_ptr() as *mut f32, self.0.len() * 8) }
     }
 }
 
+/// Row stride of the per-part statistics in the split search: the `m` statistics, one count
+/// column (1.0 per part, so bin counts are summed with the statistics), zero padding to 8.
+#[inline]
+pub fn z_stride(m: usize) -> usize {
+    (m + 1).div_ceil(8) * 8
+}
+
+/// Widest column chunk (in lanes of 8) whose `z` values stay in registers while they are
+/// added into every candidate's bin; wider rows are processed in chunks of 8 lanes.
+const MAX_LANES: usize = 10;
+
+/// Target size of a candidate group's f32 partial sums (kept in L1 while a block streams by).
+const GROUP_BYTES: usize = 24 * 1024;
+
+/// Adds `z[j, k0..k0 + 8W]` of the parts `j0..j1` into `part[(gi, bin_gi(j)), k0..]` for the
+/// `g` candidates `c0..c0 + g` (portable path; the loop nest keeps one row chunk in registers
+/// while it is added into every candidate's bin).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn add_block_lanes<const W: usize>(
+    z: &[f32],
+    mp: usize,
+    (j0, j1): (usize, usize),
+    bins: BinMatrix<'_>,
+    (c0, g, nb): (usize, usize, usize),
+    k0: usize,
+    part: &mut [f32],
+) {
+    for j in j0..j1 {
+        let zr = &z[j * mp + k0..j * mp + k0 + 8 * W];
+        let mut v = [[0f32; 8]; W];
+        for (w, lane) in v.iter_mut().enumerate() {
+            lane.copy_from_slice(&zr[8 * w..8 * w + 8]);
+        }
+        for gi in 0..g {
+            let b = bins.at(j, c0 + gi);
+            let o = (gi * nb + b as usize) * mp + k0;
+            let p = &mut part[o..o + 8 * W];
+            for (w, lane) in v.iter().enumerate() {
+                for (a, x) in p[8 * w..8 * w + 8].iter_mut().zip(lane) {
+                    *a += x;
+                }
+            }
+        }
+    }
+}
+
+/// AVX2 form of [`add_block_lanes`] (same additions in the same order: bit-identical).
+///
+/// # Safety
+/// AVX2 must be available; `z` holds `j1 * mp` values, `bins` covers parts `..j1` and
+/// candidates `..c0 + g`, every bin index is `< nb`, `part` holds `g * nb * mp` values,
+/// `k0 + 8W <= mp`, and `z` and `part` are 32-byte aligned with `mp % 8 == 0`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn accumulate_group_avx2(
+unsafe fn add_block_lanes_avx2<const W: usize>(
     z: &[f32],
-    m: usize,
-    n: usize,
-    bins: &[u8],
-    nc: usize,
-    c0: usize,
-    accs: &mut [Vec<f64>],
-    cnts: &mut [Vec<u32>],
+    mp: usize,
+    (j0, j1): (usize, usize),
+    bins: BinMatrix<'_>,
+    (c0, g, nb): (usize, usize, usize),
+    k0: usize,
+    part: &mut [f32],
 ) {
-    accumulate_group_body(z, m, n, bins, nc, c0, accs, cnts)
+    use std::arch::x86_64::*;
+    debug_assert!(z.len() >= j1 * mp && part.len() >= g * nb * mp);
+    let (sj, sc) = (bins.part_stride, bins.cand_stride);
+    let (zp, pp) = (z.as_ptr(), part.as_mut_ptr());
+    let bp = bins.data.as_ptr().add(c0 * sc);
+    for j in j0..j1 {
+        let zr = zp.add(j * mp + k0);
+        let mut v = [_mm256_setzero_ps(); W];
+        for (w, lane) in v.iter_mut().enumerate() {
+            *lane = _mm256_load_ps(zr.add(8 * w));
+        }
+        let br = bp.add(j * sj);
+        for gi in 0..g {
+            let b = *br.add(gi * sc) as usize;
+            debug_assert!(b < nb);
+            let p = pp.add((gi * nb + b) * mp + k0);
+            for (w, lane) in v.iter().enumerate() {
+                let q = p.add(8 * w);
+                _mm256_store_ps(q, _mm256_add_ps(_mm256_load_ps(q), *lane));
+            }
+        }
+    }
 }
 
+/// One block of parts, one column chunk of `lanes` lanes (dispatch on the width).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn add_block(
+    avx2: bool,
+    lanes: usize,
+    z: &[f32],
+    mp: usize,
+    js: (usize, usize),
+    bins: BinMatrix<'_>,
+    grp: (usize, usize, usize),
+    k0: usize,
+    part: &mut [f32],
+) {
+    macro_rules! dispatch {
+        ($($w:literal)*) => {
+            match lanes {
+                $($w => {
+                    #[cfg(target_arch = "x86_64")]
+                    if avx2 {
+                        // SAFETY: AVX2 checked by the caller; sizes and bin range checked in
+                        // `accumulate_group`; z and part are 32-byte aligned with mp % 8 == 0.
+                        unsafe { add_block_lanes_avx2::<$w>(z, mp, js, bins, grp, k0, part) };
+                        return;
+                    }
+                    add_block_lanes::<$w>(z, mp, js, bins, grp, k0, part)
+                })*
+                _ => unreachable!("column chunk of {lanes} lanes"),
+            }
+        };
+    }
+    let _ = avx2;
+    dispatch!(1 2 3 4 5 6 7 8 9 10)
+}
+
+/// Per-bin sums of the candidates `c0..c0 + g`: returns `g * nb * mp` f64 values (row
+/// `(gi, bin)` holds the statistics and, in column `m`, the count of the parts in that bin).
+///
+/// Loop nest: blocks of [`F32_BLOCK`] parts; per block and column chunk, each part's chunk of
+/// `z` is loaded once and added into the f32 partial row of its bin for every candidate of the
+/// group (the group's partial sums stay in L1); touched partial rows are then flushed into f64.
+/// Per element, parts are summed in order within a block and blocks in order, whatever the
+/// group size, SIMD path or thread count, so results are bit-identical on every path.
 #[allow(clippy::too_many_arguments)]
 fn accumulate_group(
     z: &[f32],
     m: usize,
     n: usize,
-    bins: &[u8],
-    nc: usize,
+    bins: BinMatrix<'_>,
     c0: usize,
-    accs: &mut [Vec<f64>],
-    cnts: &mut [Vec<u32>],
-) {
+    g: usize,
+    nb: usize,
+) -> Vec<f64> {
     #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            unsafe { accumulate_group_avx2(z, m, n, bins, nc, c0, accs, cnts) };
-            return;
+    let avx2 = std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    let avx2 = false;
+    accumulate_group_with(avx2, z, m, n, bins, c0, g, nb)
+}
+
+/// [`accumulate_group`] on the AVX2 path (`avx2`, which must be available) or the portable one.
+#[allow(clippy::too_many_arguments)]
+fn accumulate_group_with(
+    avx2: bool,
+    z: &[f32],
+    m: usize,
+    n: usize,
+    bins: BinMatrix<'_>,
+    c0: usize,
+    g: usize,
+    nb: usize,
+) -> Vec<f64> {
+    let mp = z_stride(m);
+    assert!(z.len() >= n * mp && nb <= 256);
+    let mut part = AlignedF32::zeros(g * nb * mp);
+    let part = part.as_mut_slice();
+    let mut acc = vec![0f64; g * nb * mp];
+    let chunks: Vec<(usize, usize)> = if mp <= 8 * MAX_LANES {
+        vec![(0, mp / 8)]
+    } else {
+        (0..mp)
+            .step_by(64)
+            .map(|k0| (k0, (mp - k0).min(64) / 8))
+            .collect()
+    };
+    let mut j0 = 0;
+    while j0 < n {
+        let j1 = (j0 + F32_BLOCK).min(n);
+        for &(k0, lanes) in &chunks {
+            add_block(avx2, lanes, z, mp, (j0, j1), bins, (c0, g, nb), k0, part);
         }
+        // Flush the partial rows touched by this block (count column > 0) into f64.
+        for (pr, ar) in part.chunks_exact_mut(mp).zip(acc.chunks_exact_mut(mp)) {
+            if pr[m] != 0.0 {
+                for (a, v) in ar.iter_mut().zip(pr.iter_mut()) {
+                    *a += *v as f64;
+                    *v = 0.0;
+                }
+            }
+        }
+        j0 = j1;
     }
-    accumulate_group_body(z, m, n, bins, nc, c0, accs, cnts)
+    acc
 }
 
 /// The thresholds of every candidate of a node (sorted, deduplicated), drawn as the feature
@@ -274,6 +403,31 @@ impl Thresholds {
         self.values.len()
     }
 
+    /// Bins of several feature values of candidate `c` (`out[i] = bin(c, fs[i])`).
+    #[inline]
+    pub fn bins_of(&self, c: usize, fs: &[f32], out: &mut [u8]) {
+        let t = &self.values[c];
+        if self.wide {
+            for (o, &f) in out.iter_mut().zip(fs) {
+                *o = t.partition_point(|&x| x <= f) as u8;
+            }
+            return;
+        }
+        // At most 16 thresholds: count them threshold by threshold over the values (the +inf
+        // padding of `bin` never counts for a finite or NaN value, so it is skipped).
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: AVX2 is available; `t.len() <= 16` (not wide).
+                unsafe { bins_of_avx2(t, fs, out) };
+                return;
+            }
+        }
+        for (o, &f) in out.iter_mut().zip(fs) {
+            *o = t.iter().map(|&tk| (tk <= f) as u8).sum();
+        }
+    }
+
     /// Bin of feature value `f` of candidate `c`: the number of its thresholds `≤ f`.
     #[inline(always)]
     pub fn bin(&self, c: usize, f: f32) -> u8 {
@@ -282,6 +436,41 @@ impl Thresholds {
         } else {
             bin16(&self.padded[c], f)
         }
+    }
+}
+
+/// [`Thresholds::bins_of`] for at most 16 thresholds, 8 values at a time (same comparisons:
+/// bit-identical).
+///
+/// # Safety
+/// AVX2 must be available and `t.len() <= 16`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn bins_of_avx2(t: &[f32], fs: &[f32], out: &mut [u8]) {
+    use std::arch::x86_64::*;
+    debug_assert!(t.len() <= 16);
+    let k = t.len();
+    let mut tv = [_mm256_setzero_ps(); 16];
+    for (v, &x) in tv.iter_mut().zip(t) {
+        *v = _mm256_set1_ps(x);
+    }
+    let n = fs.len().min(out.len());
+    let mut lanes = [0i32; 8];
+    let mut j = 0;
+    while j + 8 <= n {
+        let f = _mm256_loadu_ps(fs.as_ptr().add(j));
+        let mut cnt = _mm256_setzero_si256();
+        for v in &tv[..k] {
+            cnt = _mm256_sub_epi32(cnt, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(*v, f)));
+        }
+        _mm256_storeu_si256(lanes.as_mut_ptr() as *mut __m256i, cnt);
+        for (o, &l) in out[j..j + 8].iter_mut().zip(&lanes) {
+            *o = l as u8;
+        }
+        j += 8;
+    }
+    for (o, &f) in out[j..n].iter_mut().zip(&fs[j..n]) {
+        *o = t.iter().map(|&tk| (tk <= f) as u8).sum();
     }
 }
 
@@ -370,41 +559,81 @@ unsafe fn bins_row_avx2(thr: &Thresholds, soa: &CandidateSoa, g: &PartGeom<'_>, 
     }
 }
 
-/// Part-major bin indices `bins[j * C + c]` of `n` parts (all candidates of a part are
-/// evaluated together, while its image neighbourhood is in cache).
+/// Bin indices of a node's scored parts for every candidate: bin of part `j` for candidate
+/// `c` at `data[j * part_stride + c * cand_stride]`.
+#[derive(Clone, Copy, Debug)]
+pub struct BinMatrix<'a> {
+    pub data: &'a [u8],
+    pub part_stride: usize,
+    pub cand_stride: usize,
+}
+
+impl<'a> BinMatrix<'a> {
+    /// `data[j * nc + c]` (all candidates of a part together, as the forest fills them).
+    pub fn part_major(data: &'a [u8], nc: usize) -> Self {
+        BinMatrix {
+            data,
+            part_stride: nc,
+            cand_stride: 1,
+        }
+    }
+
+    /// `data[c * n + j]` (one candidate's parts together, as [`fill_bins`] fills them).
+    pub fn candidate_major(data: &'a [u8], n: usize) -> Self {
+        BinMatrix {
+            data,
+            part_stride: 1,
+            cand_stride: n,
+        }
+    }
+
+    #[inline(always)]
+    fn at(&self, j: usize, c: usize) -> u8 {
+        self.data[j * self.part_stride + c * self.cand_stride]
+    }
+}
+
+/// Candidate-major bin indices `bins[c * n + j]` of `n` parts (use with
+/// [`BinMatrix::candidate_major`]): one candidate's features are read for a run of parts and
+/// binned together (contiguous reads when the features are stored candidate-major).
 pub fn fill_bins<F>(thr: &Thresholds, n: usize, feature: &F, parallel: bool) -> Vec<u8>
 where
     F: Fn(usize, usize) -> f32 + Sync,
 {
     let nc = thr.n_candidates();
-    let fill = |j0: usize, chunk: &mut [u8]| {
-        for (jj, row) in chunk.chunks_exact_mut(nc).enumerate() {
-            for (c, out) in row.iter_mut().enumerate() {
-                *out = thr.bin(c, feature(c, j0 + jj));
+    const TILE: usize = 1024;
+    let fill = |c: usize, col: &mut [u8]| {
+        let mut fbuf = [0f32; TILE];
+        for (t, out) in col.chunks_mut(TILE).enumerate() {
+            let fs = &mut fbuf[..out.len()];
+            for (jj, f) in fs.iter_mut().enumerate() {
+                *f = feature(c, t * TILE + jj);
             }
+            thr.bins_of(c, fs, out);
         }
     };
     let mut bins = vec![0u8; n * nc];
-    if nc == 0 {
+    if n == 0 || nc == 0 {
         return bins;
     }
     if parallel && n * nc >= 8192 {
-        const ROWS: usize = 256;
-        bins.par_chunks_mut(ROWS * nc)
+        bins.par_chunks_mut(n)
             .enumerate()
-            .for_each(|(k, ch)| fill(k * ROWS, ch));
+            .for_each(|(c, col)| fill(c, col));
     } else {
-        fill(0, &mut bins);
+        for (c, col) in bins.chunks_mut(n).enumerate() {
+            fill(c, col);
+        }
     }
     bins
 }
 
-/// Best split of a node from its statistics, thresholds and part-major bins.
+/// Best split of a node from its statistics, thresholds and bins.
 pub fn score_bins(
     crit: &Criterion,
     node: &NodeData,
     thr: &Thresholds,
-    bins: &[u8],
+    bins: BinMatrix<'_>,
     min_samples_leaf: usize,
     parallel: bool,
 ) -> Option<SplitResult> {
@@ -413,34 +642,39 @@ pub fn score_bins(
     if n < 2 * min_leaf || nc == 0 {
         return None;
     }
-    // Accumulate + score, by groups of candidates sharing each block of z rows.
-    let score_group = |g: usize| -> Vec<Option<SplitResult>> {
-        let c0 = g * CAND_GROUP;
-        let c1 = (c0 + CAND_GROUP).min(nc);
-        let mut accs: Vec<Vec<f64>> = (c0..c1)
-            .map(|c| vec![0f64; (thr.values[c].len() + 1) * m])
-            .collect();
-        let mut cnts: Vec<Vec<u32>> = (c0..c1)
-            .map(|c| vec![0u32; thr.values[c].len() + 1])
-            .collect();
-        accumulate_group(&node.z, m, n, bins, nc, c0, &mut accs, &mut cnts);
+    // Bins per candidate (uniform); every bin index must be below it (checked once here, so
+    // the accumulation can index without checks).
+    let nb = thr.values.iter().map(|t| t.len() + 1).max().unwrap_or(1);
+    let last = (n - 1) * bins.part_stride + (nc - 1) * bins.cand_stride;
+    assert!(
+        bins.data.len() > last,
+        "bins: {} values for {n} x {nc}",
+        bins.data.len()
+    );
+    assert!(
+        (bins.data.iter().copied().max().unwrap_or(0) as usize) < nb,
+        "bin index out of range"
+    );
+    let mp = z_stride(m);
+    // Groups of candidates whose f32 partial sums fit in L1 together; with several threads,
+    // a multiple of the thread count of groups (grouping does not change any result).
+    let width = if mp <= 8 * MAX_LANES { mp } else { 64 };
+    let gmax = (GROUP_BYTES / (nb * width * 4)).max(1);
+    let par = parallel && n * nc >= 8192;
+    let mut n_groups = nc.div_ceil(gmax);
+    if par {
+        let t = rayon::current_num_threads().max(1);
+        n_groups = (n_groups.div_ceil(t) * t).min(nc);
+    }
+    let score_group = |gi: usize| -> Vec<Option<SplitResult>> {
+        let (c0, c1) = (gi * nc / n_groups, (gi + 1) * nc / n_groups);
+        let acc = accumulate_group(node.z.as_slice(), m, n, bins, c0, c1 - c0, nb);
         (c0..c1)
-            .enumerate()
-            .map(|(gi, c)| {
-                score_thresholds(
-                    crit,
-                    node,
-                    c,
-                    &thr.values[c],
-                    &accs[gi],
-                    &cnts[gi],
-                    min_leaf,
-                )
-            })
+            .zip(acc.chunks_exact(nb * mp))
+            .map(|(c, a)| score_thresholds(crit, node, c, &thr.values[c], a, mp, min_leaf))
             .collect()
     };
-    let n_groups = nc.div_ceil(CAND_GROUP);
-    let results: Vec<Option<SplitResult>> = if parallel && n * nc >= 8192 {
+    let results: Vec<Option<SplitResult>> = if par {
         (0..n_groups)
             .into_par_iter()
             .flat_map_iter(score_group)
@@ -481,17 +715,19 @@ where
     let thr = Thresholds::draw(n, n_candidates, cfg.n_thresholds, feature, node_seed);
     let bins = fill_bins(&thr, n, feature, cfg.parallel);
     let node = NodeData::gather(crit, targets, subset);
-    score_bins(crit, &node, &thr, &bins, cfg.min_samples_leaf, cfg.parallel)
+    let bins = BinMatrix::candidate_major(&bins, n);
+    score_bins(crit, &node, &thr, bins, cfg.min_samples_leaf, cfg.parallel)
 }
 
-/// Scores every threshold of one candidate from its per-bin statistics.
+/// Scores every threshold of one candidate from its per-bin sums (`acc` rows of stride `mp`:
+/// statistics, then the bin's count in column `m`).
 fn score_thresholds(
     crit: &Criterion,
     node: &NodeData,
     c: usize,
     thr: &[f32],
     acc: &[f64],
-    cnt: &[u32],
+    mp: usize,
     min_leaf: usize,
 ) -> Option<SplitResult> {
     let m = crit.layout.m;
@@ -502,8 +738,9 @@ fn score_thresholds(
     let mut scratch = Vec::new();
     let mut best: Option<SplitResult> = None;
     for t in 0..thr.len() {
-        nl += cnt[t] as usize;
-        for (l, a) in left.iter_mut().zip(&acc[t * m..(t + 1) * m]) {
+        let row = &acc[t * mp..t * mp + m + 1];
+        nl += row[m] as usize;
+        for (l, a) in left.iter_mut().zip(&row[..m]) {
             *l += a;
         }
         let nr = n - nl;
@@ -578,6 +815,94 @@ mod tests {
             );
             assert_eq!(mask.iter().filter(|&&x| x).count(), b.n_left);
             assert!(b.candidate != 0, "candidate 0 carries no information");
+        }
+    }
+
+    /// The accumulation gives bit-identical per-bin sums on the AVX2 and portable paths, for
+    /// part-major and candidate-major bins, narrow and wide (column-chunked) rows, and any
+    /// grouping of the candidates; counts land in column `m`.
+    #[test]
+    fn accumulation_paths_agree() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for (m, n, nc, nb) in [
+            (36usize, 300usize, 7usize, 17usize),
+            (64, 257, 5, 9),
+            (130, 200, 3, 17),
+            (7, 129, 4, 256),
+        ] {
+            let mp = z_stride(m);
+            let mut z = AlignedF32::zeros(n * mp);
+            for r in z.as_mut_slice().chunks_exact_mut(mp) {
+                for v in &mut r[..m] {
+                    *v = rng.random_range(-2.0..2.0);
+                }
+                r[m] = 1.0;
+            }
+            let pm: Vec<u8> = (0..n * nc).map(|_| rng.random_range(0..nb) as u8).collect();
+            let mut cm = vec![0u8; n * nc];
+            for j in 0..n {
+                for c in 0..nc {
+                    cm[c * n + j] = pm[j * nc + c];
+                }
+            }
+            let z = z.as_slice();
+            let reference =
+                accumulate_group_with(false, z, m, n, BinMatrix::part_major(&pm, nc), 0, nc, nb);
+            // Plain f64 sums of the f32 block sums, the documented order.
+            for c in 0..nc {
+                for b in 0..nb {
+                    let cnt = (0..n).filter(|&j| pm[j * nc + c] as usize == b).count();
+                    assert_eq!(reference[(c * nb + b) * mp + m], cnt as f64);
+                }
+            }
+            let avx2 = cfg!(target_arch = "x86_64") && {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    std::arch::is_x86_feature_detected!("avx2")
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                {
+                    false
+                }
+            };
+            for path in [false, avx2] {
+                for bins in [
+                    BinMatrix::part_major(&pm, nc),
+                    BinMatrix::candidate_major(&cm, n),
+                ] {
+                    let all = accumulate_group_with(path, z, m, n, bins, 0, nc, nb);
+                    assert!(all
+                        .iter()
+                        .zip(&reference)
+                        .all(|(a, b)| a.to_bits() == b.to_bits()));
+                    for c0 in 0..nc {
+                        let one = accumulate_group_with(path, z, m, n, bins, c0, 1, nb);
+                        let r = &reference[c0 * nb * mp..(c0 + 1) * nb * mp];
+                        assert!(one.iter().zip(r).all(|(a, b)| a.to_bits() == b.to_bits()));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Binning many values at once equals binning them one by one (features are finite; NaN
+    /// is in no bin above 0 either way).
+    #[test]
+    fn bins_of_matches_bin() {
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        for k in [1usize, 5, 16, 40] {
+            let vals: Vec<f32> = (0..1000)
+                .map(|_| rng.random_range(-50.0..50.0f32).round())
+                .collect();
+            let f = |_c: usize, j: usize| vals[j];
+            let thr = Thresholds::draw(vals.len(), 1, k, &f, k as u64);
+            let mut probe = vals.clone();
+            probe.extend([f32::NEG_INFINITY, f32::NAN, 10000.0, -10000.0]);
+            let mut out = vec![0u8; probe.len()];
+            thr.bins_of(0, &probe, &mut out);
+            for (o, &v) in out.iter().zip(&probe) {
+                assert_eq!(*o, thr.bin(0, v), "value {v}");
+            }
         }
     }
 

@@ -29,7 +29,7 @@ use crate::depth::{DepthStore, Part};
 use crate::features::{CandidateSoa, Feature, PartGeom};
 use crate::params::ForestParams;
 use crate::rng::mix;
-use crate::splitter::{bins_row, score_bins, NodeData, Thresholds};
+use crate::splitter::{bins_row, score_bins, BinMatrix, NodeData, Thresholds};
 
 /// A node of the flat array. Split: `f < threshold` goes to `child`, otherwise `child + 1`.
 /// Leaf: `child` is the leaf index.
@@ -200,6 +200,7 @@ fn plan_node(ctx: &TrainContext<'_>, tree: usize, id: usize, depth: usize, idx: 
 fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outcome) {
     let p = ctx.params;
     let node = NodeData::gather(ctx.crit, ctx.targets, &plan.subset);
+    let bins = BinMatrix::part_major(bins, plan.cands.len());
     let best = score_bins(ctx.crit, &node, &plan.thr, bins, p.min_samples_leaf, true);
     drop(node);
     let Plan { id, idx, cands, .. } = plan;
