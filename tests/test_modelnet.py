@@ -8,7 +8,7 @@ import os
 import pytest
 
 from isa.exceptions import DataError
-from isa.modelnet import find_root, list_instances, paper_instances
+from isa.modelnet import find_root, list_instances, paper_instances, validation_instances
 
 # Counts and name ranges from ../shared/data/README.md (independent of the adapter).
 REAL = {
@@ -40,6 +40,24 @@ def test_synthetic_layout_lists_in_name_order(tmp_path):
     assert [i.name for i in paper_instances(root, "chair", 2)] == ["chair_0001", "chair_0002"]
     inst = list_instances(root, "chair", "test")[0]
     assert inst.category == "chair" and inst.split == "test" and inst.path.is_file()
+
+
+def test_validation_is_the_last_train_instances_and_never_overlaps(tmp_path):
+    root = _fake_root(tmp_path)
+    assert [i.name for i in validation_instances(root, "chair", 2)] == ["chair_0003", "chair_0010"]
+    assert [i.name for i in validation_instances(root, "chair", 2, n_train=2)] == ["chair_0003", "chair_0010"]
+    with pytest.raises(DataError, match="3 training \\+ 2 validation"):
+        validation_instances(root, "chair", 2, n_train=3)  # 4 train chairs cannot hold 3 + 2
+    with pytest.raises(DataError, match="validation"):
+        validation_instances(root, "chair", 0)
+
+
+def test_real_validation_instances_are_disjoint_from_the_protocol(shared_data):
+    for cat, n_paper in PAPER.items():
+        val = {i.name for i in validation_instances(shared_data / "modelnet10", cat, n_train=n_paper)}
+        assert len(val) == 12
+        assert not val & {i.name for i in paper_instances(shared_data / "modelnet10", cat)}
+        assert max(val) == REAL[cat][3]  # the last train file
 
 
 def test_protocol_needs_enough_instances(tmp_path):

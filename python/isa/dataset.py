@@ -30,7 +30,7 @@ from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS, check_category
 from isa.exceptions import DataError
 from isa.meshes import prepare_mesh
-from isa.modelnet import list_instances, paper_instances
+from isa.modelnet import list_instances, paper_instances, validation_instances
 from isa.noise import KinectNoise, apply_kinect_noise
 from isa.procedural import generate
 from isa.skeleton_graph import SkeletonGraph
@@ -67,9 +67,15 @@ def modelnet_objects(
     """ModelNet10 instances as :class:`ObjectSpec`, rescaled to real size (seeded per instance).
 
     For ``split="train"`` the first ``n`` instances in name order (``n=None``: the paper's count);
-    for ``"test"`` the first ``n`` (``None``: all).
+    for ``"test"`` the first ``n`` (``None``: all); for ``"validation"`` the last ``n`` of the train
+    split (``None``: :data:`isa.modelnet.VALIDATION_INSTANCES`), held out for tuning.
     """
-    insts = paper_instances(root, category, n) if split == "train" else list_instances(root, category, split)[: n or None]
+    if split == "validation":
+        insts = validation_instances(root, category, n)
+    elif split == "train":
+        insts = paper_instances(root, category, n)
+    else:
+        insts = list_instances(root, category, split)[: n or None]
     out = []
     for i, inst in enumerate(tqdm(insts, desc=f"load {category}/{split}", leave=False, disable=not progress or len(insts) < 8)):
         mesh, s = prepare_mesh(inst.path, category, seed=[seed, i])

@@ -26,6 +26,8 @@ import numpy as np  # noqa: E402
 
 from isa import __version__, pipeline  # noqa: E402
 from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, check_category  # noqa: E402
+from isa.exceptions import DataError  # noqa: E402
+from isa.modelnet import paper_instances  # noqa: E402
 from isa.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset  # noqa: E402
 from isa.forest import QUALITIES, ForestParams  # noqa: E402
 from isa.pose_metrics import average_distance, model_points, recall_curve  # noqa: E402
@@ -54,6 +56,8 @@ class ExperimentConfig:
     linemod_instances: int | None = None  # None: every training instance
     ground_truth_skeletons: bool = False  # procedural only: skip skeleton extraction
     real: str | None = None  # SUN RGB-D folder: add the real-data detection section (Table 2 right)
+    validation: bool = False  # ModelNet: test on held-out train-split instances (for tuning), not the test split
+    max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
 
@@ -64,6 +68,12 @@ def _objects(cfg: ExperimentConfig, category: str, split: str):
         n = cfg.train_instances if split == "train" else cfg.test_instances
         if split == "train" and n is None:
             n = PAPER_INSTANCES[category]
+        if split == "test" and cfg.validation:
+            n_train = cfg.train_instances or PAPER_INSTANCES[category]
+            objs = modelnet_objects(cfg.modelnet, category, n, split="validation", seed=cfg.seed, first_obj_id=first)
+            if any(o.source in {str(i.path) for i in paper_instances(cfg.modelnet, category, n_train)} for o in objs):
+                raise DataError(f"{category}: validation instances overlap the {n_train} training instances")
+            return objs
         return modelnet_objects(cfg.modelnet, category, n, split=split, seed=cfg.seed, first_obj_id=first)
     n = (cfg.train_instances or 8) if split == "train" else (cfg.test_instances or 4)
     return procedural_objects(category, n, seed=cfg.seed * 1000 + (1 if split == "train" else 2), first_obj_id=first)
@@ -110,11 +120,14 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     from isa.detection import box_metadata, category_box
 
     meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "template": train.ssc.template.to_dict(),
-            "isa_version": __version__, **box_metadata(category_box(train))}
+            "isa_version": __version__, **box_metadata(category_box(train)),
+            "predict_defaults": pipeline.scaled_predict_defaults(ts)}
+    max_offset = cfg.max_offset if cfg.max_offset is not None else pipeline.scaled_max_offset(ts, train_frames[0].intrinsics.fx)
+    res["max_offset"] = max_offset
     evals = {}
     res["isa"] = {}
     for q in cfg.qualities:
-        params = replace(cfg.forest, quality=q)
+        params = replace(cfg.forest, quality=q, max_offset=max_offset)
         t0 = time.perf_counter()
         forest = pipeline.train_forest(ts, params, metadata={**meta, "quality": q})
         train_s = time.perf_counter() - t0
@@ -298,6 +311,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--linemod-instances", type=int, help="run Linemod with only the first N training instances")
     p.add_argument("--ground-truth-skeletons", action="store_true", help="procedural: use true skeletons")
     p.add_argument("--real", metavar="SUNRGBD", help="SUN RGB-D folder: also detect on its real frames")
+    p.add_argument("--validation", action="store_true",
+                   help="ModelNet: test on the last train-split instances (held out for tuning), not the test split")
+    p.add_argument("--max-offset", type=float, default=None,
+                   help="largest feature-probe offset, pixel x metres (default: scaled to the category's size)")
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -307,8 +324,9 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         categories=tuple(a.categories), modelnet=a.modelnet, train_instances=a.train_instances,
         test_instances=a.test_instances, views=a.views, test_images=a.test_images, qualities=tuple(a.qualities),
         stride=a.stride, forest=ForestParams(n_trees=a.trees, max_depth=a.depth, n_candidates=a.candidates, seed=a.seed),
+        max_offset=a.max_offset,
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
-        ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, seed=a.seed)
+        ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -61,3 +61,20 @@ def paper_instances(root: str | Path, category: str, n: int | None = None) -> li
     if len(inst) < n:
         raise DataError(f"ModelNet10 {category}/train under {root} has {len(inst)} instances, the protocol needs {n}")
     return inst[:n]
+
+
+#: Held-out instances for tuning: the LAST ones of the train split (never the paper's training
+#: instances, which are the first ones, and never the test split).
+VALIDATION_INSTANCES = 12
+
+
+def validation_instances(root: str | Path, category: str, n: int | None = None, n_train: int = 0) -> list[Instance]:
+    """The last ``n`` (default :data:`VALIDATION_INSTANCES`) train-split instances: what
+    hyper-parameters are tuned on, so test instances stay unseen. ``DataError`` if they would
+    overlap the first ``n_train`` (the training instances)."""
+    n = VALIDATION_INSTANCES if n is None else int(n)
+    inst = list_instances(root, category, "train")
+    if n <= 0 or n_train + n > len(inst):
+        raise DataError(f"ModelNet10 {category}/train under {root}: {len(inst)} instances cannot hold "
+                        f"{n_train} training + {n} validation instances")
+    return inst[len(inst) - n:]

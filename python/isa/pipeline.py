@@ -138,6 +138,35 @@ def training_set(frames: Sequence[bop.BopFrame], skeletons: dict[int, SkeletonGr
     return build_training_set(fs, stride=stride)
 
 
+#: Scale-aware settings, as fractions of the objects' diameter (estimated from the training parts,
+#: :func:`parts_diameter`), so large categories (tables, beds) get probes and kernels that fit them.
+#: Chosen on held-out ModelNet *training* instances (``python -m isa.experiment --validation``),
+#: never on test instances: table recall rose from 5% (probes fixed at 150 px·m = 0.26 m) to 21%
+#: at 400 px·m (0.34 of its 2 m diameter) and 35% at 800 px·m (0.68); see docs/results.md.
+PROBE_REACH = 0.7
+#: Position kernel radius of the Hough voting at inference (default 0.08 m suits a 1 m chair).
+VOTE_BANDWIDTH = 0.09
+
+
+def parts_diameter(ts: TrainingSet) -> float:
+    """The objects' diameter as the training parts see it: twice the 95th percentile of the
+    parts' distance to the SSC (metres)."""
+    if len(ts) == 0:
+        raise DataError("parts_diameter: the training set has no parts")
+    return float(2 * np.percentile(np.linalg.norm(ts.offsets, axis=1), 95))
+
+
+def scaled_max_offset(ts: TrainingSet, fx: float) -> float:
+    """``ForestParams.max_offset`` (pixel·metres) reaching :data:`PROBE_REACH` of the objects'
+    diameter, for a camera of focal length ``fx`` pixels; clipped to [50, 2000]."""
+    return float(np.clip(PROBE_REACH * parts_diameter(ts) * fx, 50.0, 2000.0))
+
+
+def scaled_predict_defaults(ts: TrainingSet) -> dict:
+    """Inference defaults stored in a model's metadata (``predict_defaults``), read by :func:`predict`."""
+    return {"position_bandwidth": round(VOTE_BANDWIDTH * parts_diameter(ts), 4)}
+
+
 def train_forest(ts: TrainingSet, params: ForestParams, metadata: dict | None = None) -> Forest:
     """Fit a forest on a training set; ``metadata`` (category, SSC, ...) goes into the model file."""
     forest = Forest(params)
@@ -168,10 +197,14 @@ class Evaluation:
 
 
 def predict(forest: Forest, depth: np.ndarray, intrinsics: Intrinsics, **params) -> list[dict]:
-    """Ranked 6D hypotheses for a whole depth image (float32 metres): dicts with R, t, score."""
+    """Ranked 6D hypotheses for a whole depth image (float32 metres): dicts with R, t, score.
+    Parameters not given come from the model's ``predict_defaults`` metadata (if any), then from
+    ``isa._core.default_predict_params()``."""
     from isa import _core
 
     K = [intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy]
+    meta = forest.metadata if isinstance(getattr(forest, "metadata", None), dict) else {}
+    params = {**meta.get("predict_defaults", {}), **params}
     return _core.predict(forest.core, np.ascontiguousarray(depth, np.float32), K, **params)
 
 
