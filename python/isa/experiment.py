@@ -120,8 +120,7 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     from isa.detection import box_metadata, category_box
 
     meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "template": train.ssc.template.to_dict(),
-            "isa_version": __version__, **box_metadata(category_box(train)),
-            "predict_defaults": pipeline.scaled_predict_defaults(ts)}
+            "isa_version": __version__, **box_metadata(category_box(train))}
     max_offset = cfg.max_offset if cfg.max_offset is not None else pipeline.scaled_max_offset(ts, train_frames[0].intrinsics.fx)
     res["max_offset"] = max_offset
     evals = {}

@@ -185,6 +185,20 @@ class Forest:
         """(weights (k,), offsets (k, 3), rotations (k, 4)) of one leaf."""
         return self._core.leaf_votes(tree, leaf)
 
+    # -- inference ---------------------------------------------------------------------------
+    def predict(self, depth: np.ndarray, intrinsics: Any, **params: Any) -> list[dict[str, Any]]:
+        """Ranked 6D hypotheses of the objects in a whole depth image (paper Eq. 12-13).
+
+        ``depth``: (H, W) uint16 millimetres or float metres (0 = missing); ``intrinsics``: an
+        ``isa.camera.Intrinsics``, a 3x3 matrix or (fx, fy, cx, cy). Inference parameters not given
+        come from the model's ``predict_defaults`` metadata (size-aware ones the pipeline stores),
+        then from ``isa._core.default_predict_params()``. Each hypothesis: ``R`` (3, 3), ``t`` (3,)
+        metres (SSC in the camera frame), ``quaternion``, ``score``, ``support`` (see
+        ``isa._core.predict``)."""
+        meta = self.metadata
+        defaults = meta.get("predict_defaults", {}) if isinstance(meta, dict) else {}
+        return _core.predict(self._core, depth, intrinsics, **{**defaults, **params})
+
     # -- properties --------------------------------------------------------------------------
     @property
     def is_fitted(self) -> bool:

@@ -162,18 +162,27 @@ def scaled_max_offset(ts: TrainingSet, fx: float) -> float:
     return float(np.clip(PROBE_REACH * parts_diameter(ts) * fx, 50.0, 2000.0))
 
 
+def scaled_params(params: ForestParams, ts: TrainingSet, fx: float) -> ForestParams:
+    """``params`` with ``max_offset`` scaled to the objects' size (:func:`scaled_max_offset`)."""
+    return replace(params, max_offset=scaled_max_offset(ts, fx))
+
+
 def scaled_predict_defaults(ts: TrainingSet) -> dict:
     """Inference defaults stored in a model's metadata (``predict_defaults``), read by :func:`predict`."""
     return {"position_bandwidth": round(VOTE_BANDWIDTH * parts_diameter(ts), 4)}
 
 
 def train_forest(ts: TrainingSet, params: ForestParams, metadata: dict | None = None) -> Forest:
-    """Fit a forest on a training set; ``metadata`` (category, SSC, ...) goes into the model file."""
+    """Fit a forest on a training set; ``metadata`` (category, SSC, ...) goes into the model file,
+    with size-aware inference defaults (``predict_defaults``, see :func:`scaled_predict_defaults`)
+    unless it has its own."""
     forest = Forest(params)
     arrays = ts.arrays()
     if params.quality == "Q1":
         arrays["link_angles"] = None
         arrays["node_offsets"] = None
+    metadata = dict(metadata or {})
+    metadata.setdefault("predict_defaults", scaled_predict_defaults(ts))
     forest.fit(**arrays, metadata=metadata)
     return forest
 
@@ -197,15 +206,8 @@ class Evaluation:
 
 
 def predict(forest: Forest, depth: np.ndarray, intrinsics: Intrinsics, **params) -> list[dict]:
-    """Ranked 6D hypotheses for a whole depth image (float32 metres): dicts with R, t, score.
-    Parameters not given come from the model's ``predict_defaults`` metadata (if any), then from
-    ``isa._core.default_predict_params()``."""
-    from isa import _core
-
-    K = [intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy]
-    meta = forest.metadata if isinstance(getattr(forest, "metadata", None), dict) else {}
-    params = {**meta.get("predict_defaults", {}), **params}
-    return _core.predict(forest.core, np.ascontiguousarray(depth, np.float32), K, **params)
+    """Ranked 6D hypotheses for a whole depth image: :meth:`isa.forest.Forest.predict`."""
+    return forest.predict(depth, intrinsics, **params)
 
 
 def evaluate(
