@@ -41,7 +41,13 @@ class SkeletonGraph:
         return A
 
     def transformed(self, R: np.ndarray, t: np.ndarray) -> "SkeletonGraph":
-        return SkeletonGraph(self.nodes @ np.asarray(R).T + np.asarray(t), self.links.copy(), self.names, dict(self.meta))
+        """The graph moved by X -> R X + t (with ``meta["members"]``, ground-truth segments, if any)."""
+        R, t = np.asarray(R, float), np.asarray(t, float)
+        meta = dict(self.meta)
+        if "members" in meta:
+            m = np.asarray(meta["members"], float).reshape(-1, 2, 3)
+            meta["members"] = (m @ R.T + t).tolist()
+        return SkeletonGraph(self.nodes @ R.T + t, self.links.copy(), self.names, meta)
 
     def to_dict(self) -> dict:
         return {"nodes": self.nodes.tolist(), "links": self.links.tolist(), "names": self.names, "meta": self.meta}
