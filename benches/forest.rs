@@ -14,7 +14,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use isa_core::criterion::{build_targets, Criterion as Crit, RawTargets};
-use isa_core::splitter::{best_split, SplitConfig};
+use isa_core::splitter::{best_split_columns, SplitConfig};
 use isa_core::{DepthStore, Forest, ForestParams, Quality, TrainingSet};
 
 struct Data {
@@ -76,12 +76,11 @@ fn split_search(c: &mut Criterion) {
                 min_samples_leaf: 5,
                 parallel: true,
             };
-            let f = |k: usize, j: usize| feats[k * n + j];
             group.throughput(Throughput::Elements((n * n_cand) as u64));
             group.bench_with_input(
                 BenchmarkId::new(name, format!("{}k", n / 1000)),
                 &n,
-                |b, _| b.iter(|| best_split(&crit, &t, &subset, n_cand, &f, &cfg, 1)),
+                |b, _| b.iter(|| best_split_columns(&crit, &t, &subset, n_cand, &feats, &cfg, 1)),
             );
         }
     }

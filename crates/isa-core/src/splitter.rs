@@ -68,35 +68,64 @@ pub struct NodeData {
     pub n: usize,
 }
 
+/// Parts per chunk of [`NodeData::gather`] (chunks run in parallel; their sums are combined
+/// in chunk order, so the result does not depend on the number of threads).
+const GATHER_CHUNK: usize = 2048;
+
 impl NodeData {
     pub fn gather(crit: &Criterion, targets: &Targets, subset: &[u32]) -> Self {
         let lay = &crit.layout;
         let (d, m, n) = (lay.dim, lay.m, subset.len());
         let mp = z_stride(m);
-        let mut mean = vec![0f64; d];
-        for &p in subset {
-            for (mu, &v) in mean.iter_mut().zip(targets.row(p as usize)) {
-                *mu += v as f64;
+        let add_in_order = |parts: Vec<Vec<f64>>, len: usize| {
+            let mut out = vec![0f64; len];
+            for p in parts {
+                for (o, v) in out.iter_mut().zip(p) {
+                    *o += v;
+                }
             }
-        }
+            out
+        };
+        let sums: Vec<Vec<f64>> = subset
+            .par_chunks(GATHER_CHUNK)
+            .map(|ch| {
+                let mut s = vec![0f64; d];
+                for &p in ch {
+                    for (mu, &v) in s.iter_mut().zip(targets.row(p as usize)) {
+                        *mu += v as f64;
+                    }
+                }
+                s
+            })
+            .collect();
+        let mut mean = add_in_order(sums, d);
         for mu in &mut mean {
             *mu /= n.max(1) as f64;
         }
         let mut z = AlignedF32::zeros(n * mp);
-        let mut x = vec![0f64; d];
-        let mut zr64 = vec![0f64; m];
-        let mut parent = vec![0f64; m];
-        for (zr, &p) in z.as_mut_slice().chunks_exact_mut(mp).zip(subset) {
-            for ((o, &v), mu) in x.iter_mut().zip(targets.row(p as usize)).zip(&mean) {
-                *o = v as f64 - mu;
-            }
-            lay.statistics_of(&mut zr64, &x);
-            for ((a, o), b) in parent.iter_mut().zip(zr.iter_mut()).zip(&zr64) {
-                *a += b;
-                *o = *b as f32;
-            }
-            zr[m] = 1.0;
-        }
+        let parents: Vec<Vec<f64>> = z
+            .as_mut_slice()
+            .par_chunks_mut(GATHER_CHUNK * mp)
+            .zip(subset.par_chunks(GATHER_CHUNK))
+            .map(|(zc, ch)| {
+                let mut x = vec![0f64; d];
+                let mut zr64 = vec![0f64; m];
+                let mut parent = vec![0f64; m];
+                for (zr, &p) in zc.chunks_exact_mut(mp).zip(ch) {
+                    for ((o, &v), mu) in x.iter_mut().zip(targets.row(p as usize)).zip(&mean) {
+                        *o = v as f64 - mu;
+                    }
+                    lay.statistics_of(&mut zr64, &x);
+                    for ((a, o), b) in parent.iter_mut().zip(zr.iter_mut()).zip(&zr64) {
+                        *a += b;
+                        *o = *b as f32;
+                    }
+                    zr[m] = 1.0;
+                }
+                parent
+            })
+            .collect();
+        let parent = add_in_order(parents, m);
         let mut scratch = Vec::new();
         let h_parent = crit.entropies(&parent, n.max(1), &mut scratch);
         NodeData {
@@ -223,6 +252,12 @@ unsafe fn add_block_lanes_avx2<const W: usize>(
     let bp = bins.data.as_ptr().add(c0 * sc);
     for j in j0..j1 {
         let zr = zp.add(j * mp + k0);
+        // Rows of `z` stream from memory on the first pass over a block: fetch 4 rows ahead
+        // (a hint; never faults, also past the end).
+        let ahead = zr.wrapping_add(4 * mp);
+        for l in 0..W.div_ceil(2) {
+            _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(16 * l) as *const i8);
+        }
         let mut v = [_mm256_setzero_ps(); W];
         for (w, lane) in v.iter_mut().enumerate() {
             *lane = _mm256_load_ps(zr.add(8 * w));
@@ -275,29 +310,37 @@ fn add_block(
     dispatch!(1 2 3 4 5 6 7 8 9 10)
 }
 
-/// Per-bin sums of the candidates `c0..c0 + g`: returns `g * nb * mp` f64 values (row
-/// `(gi, bin)` holds the statistics and, in column `m`, the count of the parts in that bin).
+/// Per-bin sums of the candidates `c0..c0 + nct`: returns `nct * nb * mp` f64 values (row
+/// `(c - c0, bin)` holds the statistics and, in column `m`, the count of the parts in that
+/// bin).
 ///
-/// Loop nest: blocks of [`F32_BLOCK`] parts; per block and column chunk, each part's chunk of
-/// `z` is loaded once and added into the f32 partial row of its bin for every candidate of the
-/// group (the group's partial sums stay in L1); touched partial rows are then flushed into f64.
-/// Per element, parts are summed in order within a block and blocks in order, whatever the
-/// group size, SIMD path or thread count, so results are bit-identical on every path.
-#[allow(clippy::too_many_arguments)]
+/// Loop nest: blocks of [`F32_BLOCK`] parts (read from memory once, then from cache); per
+/// block, groups of `g` candidates whose f32 partial sums stay in L1 (`g` from
+/// [`GROUP_BYTES`]); per group and column chunk, each part's chunk of `z` is loaded once into
+/// registers and added into the partial row of its bin for every candidate of the group; the
+/// touched partial rows are then flushed into f64. Per element, parts are summed in order
+/// within a block and blocks in order, whatever the grouping, SIMD path or thread count, so
+/// results are bit-identical on every path.
 fn accumulate_group(
     z: &[f32],
     m: usize,
     n: usize,
     bins: BinMatrix<'_>,
     c0: usize,
-    g: usize,
+    nct: usize,
     nb: usize,
 ) -> Vec<f64> {
     #[cfg(target_arch = "x86_64")]
     let avx2 = std::arch::is_x86_feature_detected!("avx2");
     #[cfg(not(target_arch = "x86_64"))]
     let avx2 = false;
-    accumulate_group_with(avx2, z, m, n, bins, c0, g, nb)
+    accumulate_group_with(avx2, z, m, n, bins, c0, nct, nb)
+}
+
+/// Candidates per group: their f32 partial sums (one column chunk) fit in [`GROUP_BYTES`].
+fn group_size(mp: usize, nb: usize) -> usize {
+    let width = if mp <= 8 * MAX_LANES { mp } else { 64 };
+    (GROUP_BYTES / (nb * width * 4)).max(1)
 }
 
 /// [`accumulate_group`] on the AVX2 path (`avx2`, which must be available) or the portable one.
@@ -309,14 +352,53 @@ fn accumulate_group_with(
     n: usize,
     bins: BinMatrix<'_>,
     c0: usize,
-    g: usize,
+    nct: usize,
     nb: usize,
 ) -> Vec<f64> {
     let mp = z_stride(m);
     assert!(z.len() >= n * mp && nb <= 256);
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        // SAFETY: the caller checked AVX2; sizes checked above, bin range by `score_bins`.
+        return unsafe { accumulate_avx2(z, m, n, bins, c0, nct, nb) };
+    }
+    accumulate_body(false, z, m, n, bins, c0, nct, nb)
+}
+
+/// # Safety
+/// AVX2 must be available; see [`accumulate_body`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn accumulate_avx2(
+    z: &[f32],
+    m: usize,
+    n: usize,
+    bins: BinMatrix<'_>,
+    c0: usize,
+    nct: usize,
+    nb: usize,
+) -> Vec<f64> {
+    accumulate_body(true, z, m, n, bins, c0, nct, nb)
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn accumulate_body(
+    avx2: bool,
+    z: &[f32],
+    m: usize,
+    n: usize,
+    bins: BinMatrix<'_>,
+    c0: usize,
+    nct: usize,
+    nb: usize,
+) -> Vec<f64> {
+    let mp = z_stride(m);
+    let g = group_size(mp, nb).min(nct.max(1));
     let mut part = AlignedF32::zeros(g * nb * mp);
     let part = part.as_mut_slice();
-    let mut acc = vec![0f64; g * nb * mp];
+    let mut acc = vec![0f64; nct * nb * mp];
     let chunks: Vec<(usize, usize)> = if mp <= 8 * MAX_LANES {
         vec![(0, mp / 8)]
     } else {
@@ -328,17 +410,37 @@ fn accumulate_group_with(
     let mut j0 = 0;
     while j0 < n {
         let j1 = (j0 + F32_BLOCK).min(n);
-        for &(k0, lanes) in &chunks {
-            add_block(avx2, lanes, z, mp, (j0, j1), bins, (c0, g, nb), k0, part);
-        }
-        // Flush the partial rows touched by this block (count column > 0) into f64.
-        for (pr, ar) in part.chunks_exact_mut(mp).zip(acc.chunks_exact_mut(mp)) {
-            if pr[m] != 0.0 {
-                for (a, v) in ar.iter_mut().zip(pr.iter_mut()) {
-                    *a += *v as f64;
-                    *v = 0.0;
+        let mut ca = 0;
+        while ca < nct {
+            let gg = g.min(nct - ca);
+            for &(k0, lanes) in &chunks {
+                add_block(
+                    avx2,
+                    lanes,
+                    z,
+                    mp,
+                    (j0, j1),
+                    bins,
+                    (c0 + ca, gg, nb),
+                    k0,
+                    part,
+                );
+            }
+            // Flush the partial rows touched by this block (count column > 0) into f64.
+            let rows = gg * nb * mp;
+            let acc_g = &mut acc[ca * nb * mp..ca * nb * mp + rows];
+            for (pr, ar) in part[..rows]
+                .chunks_exact_mut(mp)
+                .zip(acc_g.chunks_exact_mut(mp))
+            {
+                if pr[m] != 0.0 {
+                    for (a, v) in ar.iter_mut().zip(pr.iter_mut()) {
+                        *a += *v as f64;
+                        *v = 0.0;
+                    }
                 }
             }
+            ca += gg;
         }
         j0 = j1;
     }
@@ -455,19 +557,30 @@ unsafe fn bins_of_avx2(t: &[f32], fs: &[f32], out: &mut [u8]) {
         *v = _mm256_set1_ps(x);
     }
     let n = fs.len().min(out.len());
-    let mut lanes = [0i32; 8];
-    let mut j = 0;
-    while j + 8 <= n {
-        let f = _mm256_loadu_ps(fs.as_ptr().add(j));
+    let count = |f: __m256| {
         let mut cnt = _mm256_setzero_si256();
         for v in &tv[..k] {
             cnt = _mm256_sub_epi32(cnt, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(*v, f)));
         }
-        _mm256_storeu_si256(lanes.as_mut_ptr() as *mut __m256i, cnt);
-        for (o, &l) in out[j..j + 8].iter_mut().zip(&lanes) {
-            *o = l as u8;
-        }
-        j += 8;
+        cnt
+    };
+    // 32 values per step: four counts of 8, packed to bytes (counts <= 16 never saturate;
+    // the packs interleave 128-bit lanes, the permutation restores the order).
+    let order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
+    let mut j = 0;
+    while j + 32 <= n {
+        let p = fs.as_ptr().add(j);
+        // Features usually stream from memory: fetch 2 KiB ahead (a hint; never faults).
+        _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(512) as *const i8);
+        _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(528) as *const i8);
+        let c0 = count(_mm256_loadu_ps(p));
+        let c1 = count(_mm256_loadu_ps(p.add(8)));
+        let c2 = count(_mm256_loadu_ps(p.add(16)));
+        let c3 = count(_mm256_loadu_ps(p.add(24)));
+        let b = _mm256_packus_epi16(_mm256_packs_epi32(c0, c1), _mm256_packs_epi32(c2, c3));
+        let b = _mm256_permutevar8x32_epi32(b, order);
+        _mm256_storeu_si256(out.as_mut_ptr().add(j) as *mut __m256i, b);
+        j += 32;
     }
     for (o, &f) in out[j..n].iter_mut().zip(&fs[j..n]) {
         *o = t.iter().map(|&tk| (tk <= f) as u8).sum();
@@ -628,6 +741,32 @@ where
     bins
 }
 
+/// [`fill_bins`] for features stored candidate-major: `columns[c * n + j]` is candidate `c`
+/// on the node's `j`-th scored part (each column is binned in place, no copies).
+pub fn fill_bins_columns(thr: &Thresholds, n: usize, columns: &[f32], parallel: bool) -> Vec<u8> {
+    let nc = thr.n_candidates();
+    assert!(
+        columns.len() >= n * nc,
+        "columns: {} values for {n} x {nc}",
+        columns.len()
+    );
+    let mut bins = vec![0u8; n * nc];
+    if n == 0 || nc == 0 {
+        return bins;
+    }
+    let fill = |c: usize, col: &mut [u8]| thr.bins_of(c, &columns[c * n..(c + 1) * n], col);
+    if parallel && n * nc >= 8192 {
+        bins.par_chunks_mut(n)
+            .enumerate()
+            .for_each(|(c, col)| fill(c, col));
+    } else {
+        for (c, col) in bins.chunks_mut(n).enumerate() {
+            fill(c, col);
+        }
+    }
+    bins
+}
+
 /// Best split of a node from its statistics, thresholds and bins.
 pub fn score_bins(
     crit: &Criterion,
@@ -656,15 +795,15 @@ pub fn score_bins(
         "bin index out of range"
     );
     let mp = z_stride(m);
-    // Groups of candidates whose f32 partial sums fit in L1 together; with several threads,
-    // a multiple of the thread count of groups (grouping does not change any result).
-    let width = if mp <= 8 * MAX_LANES { mp } else { 64 };
-    let gmax = (GROUP_BYTES / (nb * width * 4)).max(1);
+    // Tasks of candidates (each streams the node's `z` once, in blocks): one per group of
+    // `group_size` when sequential; with several threads, two per thread (rounded to whole
+    // groups where possible). The partition does not change any result.
     let par = parallel && n * nc >= 8192;
-    let mut n_groups = nc.div_ceil(gmax);
+    let mut n_groups = nc.div_ceil(group_size(mp, nb));
     if par {
-        let t = rayon::current_num_threads().max(1);
-        n_groups = (n_groups.div_ceil(t) * t).min(nc);
+        n_groups = n_groups.min(2 * rayon::current_num_threads().max(1));
+    } else {
+        n_groups = 1;
     }
     let score_group = |gi: usize| -> Vec<Option<SplitResult>> {
         let (c0, c1) = (gi * nc / n_groups, (gi + 1) * nc / n_groups);
@@ -714,6 +853,35 @@ where
     }
     let thr = Thresholds::draw(n, n_candidates, cfg.n_thresholds, feature, node_seed);
     let bins = fill_bins(&thr, n, feature, cfg.parallel);
+    let node = NodeData::gather(crit, targets, subset);
+    let bins = BinMatrix::candidate_major(&bins, n);
+    score_bins(crit, &node, &thr, bins, cfg.min_samples_leaf, cfg.parallel)
+}
+
+/// [`best_split`] on precomputed features stored candidate-major: `columns[c * n + j]` is
+/// candidate `c` on the `j`-th scored part, `n = subset.len()` (same result as `best_split`
+/// with `feature(c, j) = columns[c * n + j]`).
+pub fn best_split_columns(
+    crit: &Criterion,
+    targets: &Targets,
+    subset: &[u32],
+    n_candidates: usize,
+    columns: &[f32],
+    cfg: &SplitConfig,
+    node_seed: u64,
+) -> Option<SplitResult> {
+    let n = subset.len();
+    assert!(
+        columns.len() >= n * n_candidates,
+        "columns: {} values for {n} x {n_candidates}",
+        columns.len()
+    );
+    if n < 2 * cfg.min_samples_leaf.max(1) || n_candidates == 0 {
+        return None;
+    }
+    let feature = |c: usize, j: usize| columns[c * n + j];
+    let thr = Thresholds::draw(n, n_candidates, cfg.n_thresholds, &feature, node_seed);
+    let bins = fill_bins_columns(&thr, n, columns, cfg.parallel);
     let node = NodeData::gather(crit, targets, subset);
     let bins = BinMatrix::candidate_major(&bins, n);
     score_bins(crit, &node, &thr, bins, cfg.min_samples_leaf, cfg.parallel)
@@ -885,6 +1053,45 @@ mod tests {
         }
     }
 
+    /// The column entry point gives the closure's result, on one thread and on several.
+    #[test]
+    fn best_split_columns_matches_best_split() {
+        let n = 3000;
+        let nc = 9;
+        let mut rng = ChaCha8Rng::seed_from_u64(13);
+        let off: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let rot: Vec<f32> = (0..n)
+            .flat_map(|i| [1.0, 0.1 * (i % 3) as f32, 0.0, (i % 7) as f32 * 0.1])
+            .collect();
+        let cols: Vec<f32> = (0..n * nc)
+            .map(|i| {
+                (off[3 * (i % n)] * 50.0 * (i / n) as f32 + rng.random_range(-9.0..9.0)).round()
+            })
+            .collect();
+        let raw = RawTargets {
+            offsets: &off,
+            rotations: &rot,
+            link_angles: None,
+            node_offsets: None,
+        };
+        let t = build_targets(&raw, Quality::Q1, 0).unwrap();
+        let crit = Criterion::new(t.layout.clone(), 1e-4);
+        let subset: Vec<u32> = (0..n as u32).collect();
+        let f = |c: usize, j: usize| cols[c * n + j];
+        let mut results = Vec::new();
+        for parallel in [false, true] {
+            let cfg = SplitConfig {
+                n_thresholds: 16,
+                min_samples_leaf: 5,
+                parallel,
+            };
+            results.push(best_split(&crit, &t, &subset, nc, &f, &cfg, 4));
+            results.push(best_split_columns(&crit, &t, &subset, nc, &cols, &cfg, 4));
+        }
+        assert!(results[0].is_some());
+        assert!(results.iter().all(|r| *r == results[0]), "{results:?}");
+    }
+
     /// Binning many values at once equals binning them one by one (features are finite; NaN
     /// is in no bin above 0 either way).
     #[test]
@@ -900,6 +1107,9 @@ mod tests {
             probe.extend([f32::NEG_INFINITY, f32::NAN, 10000.0, -10000.0]);
             let mut out = vec![0u8; probe.len()];
             thr.bins_of(0, &probe, &mut out);
+            let mut out2 = vec![0u8; probe.len() - 3];
+            thr.bins_of(0, &probe[3..], &mut out2);
+            assert_eq!(out[3..], out2[..]);
             for (o, &v) in out.iter().zip(&probe) {
                 assert_eq!(*o, thr.bin(0, v), "value {v}");
             }

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use isa_core::criterion::{build_targets, term_gains, Criterion, RawTargets};
-use isa_core::splitter::{best_split, SplitConfig};
+use isa_core::splitter::{best_split_columns, SplitConfig};
 use isa_core::{Feature, Quality};
 
 use crate::arrays::{array, check_finite, depth_store, parts as parts_arg};
@@ -238,9 +238,8 @@ pub fn split_search<'py>(
                     cm[k * n + p] = fs[p * c + k];
                 }
             }
-            let feat = |k: usize, j: usize| cm[k * n + j];
             let t0 = std::time::Instant::now();
-            let b = best_split(&crit, &t, &subset, c, &feat, &cfg, seed);
+            let b = best_split_columns(&crit, &t, &subset, c, &cm, &cfg, seed);
             Ok((b, t0.elapsed().as_secs_f64()))
         })
     });
