@@ -395,12 +395,18 @@ fn train(a: TrainArgs) -> CliResult<()> {
         ts.n_parts(),
         ts.store.len()
     );
-    let pb = spinner(a.quiet, msg.clone());
-    let t0 = Instant::now();
     if a.threads == Some(0) {
         return Err(CliError::param("--threads must be at least 1".into()));
     }
-    let forest = Forest::fit(&params, &ts.training_set(), &ts.metadata, a.threads)?;
+    let pb = bar(a.quiet, params.n_trees as u64, &format!("training {} trees", params.n_trees));
+    let t0 = Instant::now();
+    let forest = Forest::fit_with_progress(
+        &params,
+        &ts.training_set(),
+        &ts.metadata,
+        a.threads,
+        &|done| pb.set_position(done as u64),
+    )?;
     let secs = t0.elapsed().as_secs_f64();
     pb.finish_and_clear();
     forest.save(&a.output)?;

@@ -79,6 +79,18 @@ impl Forest {
         metadata: &str,
         n_threads: Option<usize>,
     ) -> Result<Forest> {
+        Self::fit_with_progress(params, data, metadata, n_threads, &|_| {})
+    }
+
+    /// [`Forest::fit`], calling `on_tree(trees_done)` after each tree (trees are built one after
+    /// the other), e.g. to drive a progress bar.
+    pub fn fit_with_progress(
+        params: &ForestParams,
+        data: &TrainingSet<'_>,
+        metadata: &str,
+        n_threads: Option<usize>,
+        on_tree: &(dyn Fn(usize) + Sync),
+    ) -> Result<Forest> {
         params.validate()?;
         let n = data.parts.len();
         if n == 0 {
@@ -125,7 +137,9 @@ impl Forest {
                         v.sort_unstable();
                         v
                     };
-                    build_tree(&ctx, t, bag)
+                    let tree = build_tree(&ctx, t, bag);
+                    on_tree(t + 1);
+                    tree
                 })
                 .collect();
             Ok(Forest {
@@ -304,6 +318,33 @@ pub(crate) mod tests {
             .unwrap()
             .to_bytes();
         assert_ne!(a, c);
+    }
+
+    #[test]
+    fn progress_reports_each_tree_in_order_and_changes_nothing() {
+        let (store, parts, off, rot) = toy(2);
+        let data = TrainingSet {
+            store: &store,
+            parts: &parts,
+            targets: RawTargets {
+                offsets: &off,
+                rotations: &rot,
+                link_angles: None,
+                node_offsets: None,
+            },
+        };
+        let p = ForestParams {
+            n_trees: 3,
+            ..toy_params()
+        };
+        let seen = std::sync::Mutex::new(Vec::new());
+        let with = Forest::fit_with_progress(&p, &data, "{}", Some(2), &|k| {
+            seen.lock().unwrap().push(k)
+        })
+        .unwrap();
+        assert_eq!(*seen.lock().unwrap(), vec![1, 2, 3]);
+        let without = Forest::fit(&p, &data, "{}", Some(2)).unwrap();
+        assert_eq!(with.to_bytes(), without.to_bytes());
     }
 
     #[test]
