@@ -398,7 +398,11 @@ fn train(a: TrainArgs) -> CliResult<()> {
     if a.threads == Some(0) {
         return Err(CliError::param("--threads must be at least 1".into()));
     }
-    let pb = bar(a.quiet, params.n_trees as u64, &format!("training {} trees", params.n_trees));
+    let pb = bar(
+        a.quiet,
+        params.n_trees as u64,
+        &format!("training {} trees", params.n_trees),
+    );
     let t0 = Instant::now();
     let forest = Forest::fit_with_progress(
         &params,
