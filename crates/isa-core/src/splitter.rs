@@ -9,9 +9,20 @@
 //! factorisations. This is the binned form of "sort, then sweep with incremental sufficient
 //! statistics" and costs O(n · m) per candidate instead of O(n log n + n · m).
 //!
-//! Layout for speed: the node's `z` rows are computed once (`n × m` f64); features and bin
-//! indices are part-major (all candidates of a part while its image patch is in cache); the accumulation is tiled (blocks of parts × groups of
-//! candidates) so a block of `z` rows is reused from cache by every candidate of a group.
+//! Layout for speed (this accumulation is the hot loop: `n × C` part × candidate additions of
+//! an `m`-vector):
+//! * the node's `z` rows are computed once, in f32 (`z_stride(m)` floats: the statistics, a
+//!   count column of 1.0, zero padding to a multiple of 8; rows 32-byte aligned);
+//! * bin indices are `u8`, part-major when the forest fills them (all candidates of a part
+//!   while its image patch is in cache, [`bins_row`]) or candidate-major for precomputed
+//!   feature columns ([`fill_bins_columns`]); [`BinMatrix`] carries either layout;
+//! * the accumulation runs over blocks of [`F32_BLOCK`] parts (each task reads `z` from memory
+//!   once); within a block, groups of candidates whose f32 partial sums fit in L1 take turns;
+//!   for each part, its `z` row is loaded once into registers (up to 80 floats, wider rows in
+//!   chunks of 64) and added into the partial row of its bin for every candidate of the group
+//!   (AVX2 when the CPU has it, detected at run time, else portable code; same additions in
+//!   the same order, so both paths give bit-identical sums); after each block the touched
+//!   partial rows are added into f64 totals. Counts ride along as the count column.
 //!
 //! Documented approximations:
 //! * large nodes score on a random subsample of at most `max_score_samples` parts (drawn without
