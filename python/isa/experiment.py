@@ -57,6 +57,7 @@ class ExperimentConfig:
     ground_truth_skeletons: bool = False  # procedural only: skip skeleton extraction
     real: str | None = None  # SUN RGB-D folder: add the real-data detection section (Table 2 right)
     validation: bool = False  # ModelNet: test on held-out train-split instances (for tuning), not the test split
+    ssc_tie_tolerance: int = 0  # nodes within this many votes of the top one share the SSC
     max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
@@ -94,7 +95,8 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     tm = res["timing_s"]
     data = out / "data" / category
     t0 = time.perf_counter()
-    train = pipeline.prepare_category(category, _objects(cfg, category, "train"), use_ground_truth=cfg.ground_truth_skeletons)
+    train = pipeline.prepare_category(category, _objects(cfg, category, "train"), use_ground_truth=cfg.ground_truth_skeletons,
+                                      tie_tolerance=cfg.ssc_tie_tolerance)
     test = pipeline.prepare_category(category, _objects(cfg, category, "test"), ssc=train.ssc,
                                      use_ground_truth=cfg.ground_truth_skeletons)
     tm["skeletons_ssc"] = time.perf_counter() - t0
@@ -314,6 +316,8 @@ def parser() -> argparse.ArgumentParser:
                    help="ModelNet: test on the last train-split instances (held out for tuning), not the test split")
     p.add_argument("--max-offset", type=float, default=None,
                    help="largest feature-probe offset, pixel x metres (default: scaled to the category's size)")
+    p.add_argument("--ssc-tie-tolerance", type=int, default=0,
+                   help="skeleton nodes within this many votes of the most repetitive one share the SSC")
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -325,7 +329,8 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         stride=a.stride, forest=ForestParams(n_trees=a.trees, max_depth=a.depth, n_candidates=a.candidates, seed=a.seed),
         max_offset=a.max_offset,
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
-        ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation, seed=a.seed)
+        ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation,
+        ssc_tie_tolerance=a.ssc_tie_tolerance, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:

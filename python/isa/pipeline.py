@@ -88,12 +88,15 @@ def prepare_category(
     ssc: CategorySSC | None = None,
     use_ground_truth: bool = False,
     progress: bool = True,
+    tie_tolerance: int = 0,
 ) -> PreparedCategory:
     """Skeletons matched to the category template, the SSC (fitted here on ``objects`` when
     ``ssc`` is None: the training instances; given: the test instances), and every instance moved
     so that its SSC is the object-frame origin.
 
     ``use_ground_truth``: procedural objects use their true skeletons instead of extraction.
+    ``tie_tolerance``: nodes within this many votes of the most repetitive one share the SSC
+    (:func:`isa.ssc.select_ssc`).
     """
     if not objects:
         raise DataError(f"prepare_category({category!r}): no instances")
@@ -105,7 +108,7 @@ def prepare_category(
     matched = [m for m, _ in pairs]
     coms = np.array([c for _, c in pairs])
     if ssc is None:
-        ssc = CategorySSC(template, select_ssc(matched, coms))
+        ssc = CategorySSC(template, select_ssc(matched, coms, tie_tolerance=tie_tolerance))
     out_objs, out_sk, origins = [], {}, []
     for o, sk in zip(objects, matched):
         origin = ssc.ssc.point(sk)
