@@ -4,9 +4,11 @@
 //! `(K⁻¹ [u, v, 1]ᵀ z + Δx, q, w / |F|)` (Eq. 13 averages over the trees), and
 //! [`find_modes`](super::find_modes) turns the votes into ranked hypotheses.
 //!
-//! Traversal runs in parallel over fixed chunks of parts (trees outer, parts inner inside a chunk,
-//! so a tree's top levels stay in cache); chunks are concatenated in order, so the votes and the
-//! hypotheses do not depend on the number of threads.
+//! Traversal runs in parallel over fixed blocks of parts (trees outer, parts inner inside a block,
+//! so a tree's top levels stay in cache; 16 parts walk a tree at once with AVX2 gathers when the
+//! CPU has them, see `traverse.rs`, else the portable [`leaves_batched`]); a second pass writes
+//! each chunk's votes into its place in the output, so the votes and the hypotheses do not
+//! depend on the number of threads (nor on which traversal ran: both take the same decisions).
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -17,6 +19,8 @@ use crate::error::{IsaError, Result};
 use crate::features::BACKGROUND_MM;
 use crate::forest::Forest;
 use crate::tree::Tree;
+
+use super::traverse::FlatTree;
 
 /// Pinhole intrinsics (pixels), OpenCV convention: pixel centres at integer `(u, v)`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -286,7 +290,16 @@ pub(crate) fn leaves_batched(
     }
 }
 
+/// Parts traversed together per tree (several vote chunks of [`CHUNK`] parts: a long run keeps
+/// every traversal lane busy and a tree's upper nodes in cache).
+const BLOCK: usize = 4 * CHUNK;
+
 /// Traverses every tree for every part; `meta` also records pixels and trees.
+///
+/// Two passes, in parallel over blocks of parts: (1) the leaf of every (tree, part) and the
+/// number of votes of every chunk of [`CHUNK`] parts; (2) every chunk writes its votes straight
+/// into its slice of the output (chunk, then tree, then part, then leaf vote), so votes are
+/// neither reallocated nor concatenated, and their order does not depend on the thread count.
 fn collect_votes(
     forest: &Forest,
     store: &DepthStore,
@@ -296,63 +309,140 @@ fn collect_votes(
     meta: bool,
 ) -> ImageVotes {
     let n_trees = forest.n_trees();
-    let inv_trees = if n_trees > 0 {
-        1.0 / n_trees as f32
-    } else {
-        0.0
-    };
-    let min_w = params.min_leaf_weight;
-    let chunks: Vec<ImageVotes> = parts
-        .par_chunks(CHUNK)
-        .map(|chunk| {
-            // Part centres in 3D, once per chunk.
-            let centres: Vec<[f32; 3]> = chunk
-                .iter()
-                .map(|p| {
-                    let z = f64::from(store.center_depth(p)) * 1e-3;
-                    k.back_project(f64::from(p[1]), f64::from(p[2]), z)
-                        .map(|c| c as f32)
-                })
-                .collect();
-            let img = store.image(0);
-            let pix: Vec<(i32, i32, u16)> = chunk
-                .iter()
-                .map(|p| (p[1], p[2], img.get(p[1], p[2])))
-                .collect();
-            let mut leaves = vec![0u32; chunk.len()];
-            let mut out = ImageVotes::default();
-            out.votes.reserve(chunk.len() * n_trees);
-            for (t, tree) in forest.trees.iter().enumerate() {
-                leaves_batched(tree, &img, &pix, &mut leaves);
-                for ((p, c), &leaf) in chunk.iter().zip(&centres).zip(&leaves) {
-                    for v in tree.leaf_votes(leaf as usize) {
-                        if v.weight < min_w {
-                            continue;
-                        }
-                        out.votes.push(PoseVote {
-                            position: [c[0] + v.offset[0], c[1] + v.offset[1], c[2] + v.offset[2]],
-                            rotation: v.rotation,
-                            weight: v.weight * inv_trees,
-                        });
-                        if meta {
-                            out.pixels.push([p[1] as u32, p[2] as u32]);
-                            out.trees.push(t as u32);
-                        }
-                    }
-                }
-            }
-            out
-        })
-        .collect();
     let mut all = ImageVotes {
-        votes: Vec::with_capacity(chunks.iter().map(|c| c.votes.len()).sum()),
         n_parts: parts.len(),
         ..Default::default()
     };
-    for c in chunks {
-        all.votes.extend_from_slice(&c.votes);
-        all.pixels.extend_from_slice(&c.pixels);
-        all.trees.extend_from_slice(&c.trees);
+    if n_trees == 0 || parts.is_empty() {
+        return all;
+    }
+    let inv_trees = 1.0 / n_trees as f32;
+    let min_w = params.min_leaf_weight;
+    let img = store.image(0);
+    // The AVX2 traversal, when the CPU has it and every tree is well formed.
+    let flat: Option<Vec<FlatTree>> = if FlatTree::available() {
+        forest.trees.par_iter().map(FlatTree::new).collect()
+    } else {
+        None
+    };
+    let kept = |tree: &Tree, leaf: u32| -> usize {
+        tree.leaf_votes(leaf as usize)
+            .iter()
+            .filter(|v| v.weight >= min_w)
+            .count()
+    };
+    // Pass 1: leaves[block][tree * block_len + part], votes per chunk.
+    let blocks: Vec<(Vec<u32>, Vec<usize>)> = parts
+        .par_chunks(BLOCK)
+        .map(|block| {
+            let pix: Vec<(i32, i32, u16)> = block
+                .iter()
+                .map(|p| (p[1], p[2], img.get(p[1], p[2])))
+                .collect();
+            let nb = block.len();
+            let mut leaves = vec![0u32; nb * n_trees];
+            for (t, row) in leaves.chunks_mut(nb).enumerate() {
+                match &flat {
+                    // SAFETY: AVX2 checked by `FlatTree::available`; `img` is an image of a
+                    // DepthStore (padding pixel after it).
+                    Some(f) => unsafe { f[t].leaves(&img, &pix, row) },
+                    None => leaves_batched(&forest.trees[t], &img, &pix, row),
+                }
+            }
+            let mut counts = vec![0usize; nb.div_ceil(CHUNK)];
+            for (t, tree) in forest.trees.iter().enumerate() {
+                let row = &leaves[t * nb..(t + 1) * nb];
+                for (c, ls) in counts.iter_mut().zip(row.chunks(CHUNK)) {
+                    *c += ls.iter().map(|&l| kept(tree, l)).sum::<usize>();
+                }
+            }
+            (leaves, counts)
+        })
+        .collect();
+    // Pass 2: each chunk fills its own slice of the outputs.
+    let counts: Vec<usize> = blocks.iter().flat_map(|b| b.1.iter().copied()).collect();
+    let total: usize = counts.iter().sum();
+    all.votes.reserve_exact(total);
+    if meta {
+        all.pixels.reserve_exact(total);
+        all.trees.reserve_exact(total);
+    }
+    {
+        let mut votes_rest = &mut all.votes.spare_capacity_mut()[..total];
+        let (mut pix_rest, mut tree_rest) = if meta {
+            (
+                &mut all.pixels.spare_capacity_mut()[..total],
+                &mut all.trees.spare_capacity_mut()[..total],
+            )
+        } else {
+            (&mut [][..], &mut [][..])
+        };
+        let mut jobs = Vec::with_capacity(counts.len());
+        let mut ci = 0;
+        for (b, (leaves, bcounts)) in blocks.iter().enumerate() {
+            let block = &parts[b * BLOCK..(b * BLOCK + BLOCK).min(parts.len())];
+            for (c, &n) in bcounts.iter().enumerate() {
+                let (v, vr) = std::mem::take(&mut votes_rest).split_at_mut(n);
+                votes_rest = vr;
+                let m = if meta { n } else { 0 };
+                let (px, pr) = std::mem::take(&mut pix_rest).split_at_mut(m);
+                pix_rest = pr;
+                let (tr, trr) = std::mem::take(&mut tree_rest).split_at_mut(m);
+                tree_rest = trr;
+                let lo = c * CHUNK;
+                let hi = (lo + CHUNK).min(block.len());
+                jobs.push((leaves, block.len(), lo, &block[lo..hi], v, px, tr));
+                ci += 1;
+            }
+        }
+        debug_assert_eq!(ci, counts.len());
+        jobs.into_par_iter()
+            .for_each(|(leaves, nb, lo, chunk, v_out, px_out, tr_out)| {
+                let mut j = 0usize;
+                let centres: Vec<[f32; 3]> = chunk
+                    .iter()
+                    .map(|p| {
+                        let z = f64::from(store.center_depth(p)) * 1e-3;
+                        k.back_project(f64::from(p[1]), f64::from(p[2]), z)
+                            .map(|c| c as f32)
+                    })
+                    .collect();
+                for (t, tree) in forest.trees.iter().enumerate() {
+                    let row = &leaves[t * nb + lo..t * nb + lo + chunk.len()];
+                    for ((p, c), &leaf) in chunk.iter().zip(&centres).zip(row) {
+                        for v in tree.leaf_votes(leaf as usize) {
+                            if v.weight < min_w {
+                                continue;
+                            }
+                            v_out[j].write(PoseVote {
+                                position: [
+                                    c[0] + v.offset[0],
+                                    c[1] + v.offset[1],
+                                    c[2] + v.offset[2],
+                                ],
+                                rotation: v.rotation,
+                                weight: v.weight * inv_trees,
+                            });
+                            if meta {
+                                px_out[j].write([p[1] as u32, p[2] as u32]);
+                                tr_out[j].write(t as u32);
+                            }
+                            j += 1;
+                        }
+                    }
+                }
+                // Pass 1 counted exactly these votes: every slot is written.
+                assert_eq!(j, v_out.len());
+            });
+    }
+    // SAFETY: the slices covering the first `total` slots were all written (asserted above;
+    // a failed assertion panics before this point).
+    unsafe {
+        all.votes.set_len(total);
+        if meta {
+            all.pixels.set_len(total);
+            all.trees.set_len(total);
+        }
     }
     all
 }
@@ -626,6 +716,52 @@ mod tests {
                 leaves_batched(tree, &img, &pix, &mut leaves);
                 let want: Vec<u32> = parts.iter().map(|p| tree.leaf_of(&store, p)).collect();
                 assert_eq!(leaves, want);
+            }
+        }
+        // So does the AVX2 traversal, on every pixel (missing depth included) of a noisy frame
+        // with holes, probes running off every border.
+        {
+            let (r, t) = poses[7];
+            let mut depth = synth::render(&synth::chair(), r, t, &k, 160, 120);
+            let mut state = 12345u32;
+            for d in depth.iter_mut() {
+                state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                match state >> 28 {
+                    0 => *d = 0,
+                    1 => *d = 400 + (state >> 8 & 0x1fff) as u16,
+                    2 if *d == 0 => *d = 2000 + (state >> 12 & 0x3ff) as u16,
+                    _ => {}
+                }
+            }
+            let mut store = DepthStore::new();
+            store.push(160, 120, &depth).unwrap();
+            let img = store.image(0);
+            let mut pix = Vec::new();
+            let mut parts = Vec::new();
+            for v in 0..120 {
+                for u in 0..160 {
+                    pix.push((u, v, img.get(u, v)));
+                    parts.push([0, u, v]);
+                }
+            }
+            if FlatTree::available() {
+                for tree in &forest.trees {
+                    let flat = FlatTree::new(tree).unwrap();
+                    let mut fast = vec![0u32; pix.len()];
+                    // SAFETY: AVX2 available; a DepthStore image.
+                    unsafe { flat.leaves(&img, &pix, &mut fast) };
+                    let mut portable = vec![0u32; pix.len()];
+                    leaves_batched(tree, &img, &pix, &mut portable);
+                    assert_eq!(fast, portable);
+                    let want: Vec<u32> = parts.iter().map(|p| tree.leaf_of(&store, p)).collect();
+                    assert_eq!(fast, want);
+                    // Fewer parts than lanes, and none.
+                    unsafe { flat.leaves(&img, &pix[..5], &mut fast[..5]) };
+                    assert_eq!(fast[..5], want[..5]);
+                    unsafe { flat.leaves(&img, &[], &mut []) };
+                }
+            } else {
+                eprintln!("(no AVX2 here: only the portable traversal is tested)");
             }
         }
         // The same camera, a 320x240 frame: principal point moved, so the chair sits off-centre.
