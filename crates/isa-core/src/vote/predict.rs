@@ -6,7 +6,7 @@
 //!
 //! Traversal runs in parallel over fixed blocks of parts (trees outer, parts inner inside a block,
 //! so a tree's top levels stay in cache; 16 parts walk a tree at once with AVX2 gathers when the
-//! CPU has them, see `traverse.rs`, else the portable [`leaves_batched`]); a second pass writes
+//! CPU has them, see `traverse.rs`, else the portable `leaves_batched`); a second pass writes
 //! each chunk's votes into its place in the output, so the votes and the hypotheses do not
 //! depend on the number of threads (nor on which traversal ran: both take the same decisions).
 
