@@ -505,12 +505,101 @@ fn coarse_mean_shift(
     Some((m, density))
 }
 
+/// Centres per block of [`gather`]: `[x, y, z]` lanes.
+const GATHER_LANES: usize = 8;
+
+/// [`gather`] on one chunk of votes whose first index is `base`: `out[c]` gets the indices
+/// within `sqrt(r2)` of centre `c` (same f32 operations on every path).
+#[inline(always)]
+fn gather_chunk(
+    chunk: &[PoseVote],
+    base: usize,
+    blocks: &[[[f32; GATHER_LANES]; 3]],
+    r2: f32,
+    out: &mut [Vec<u32>],
+) {
+    const B: usize = GATHER_LANES;
+    for (i, v) in chunk.iter().enumerate() {
+        if v.weight <= 0.0 {
+            continue;
+        }
+        let p = v.position;
+        for (bi, b) in blocks.iter().enumerate() {
+            let mut mask = 0u32;
+            for l in 0..B {
+                let (dx, dy, dz) = (p[0] - b[0][l], p[1] - b[1][l], p[2] - b[2][l]);
+                mask |= u32::from(dx * dx + dy * dy + dz * dz < r2) << l;
+            }
+            while mask != 0 {
+                let l = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                out[bi * B + l].push((base + i) as u32);
+            }
+        }
+    }
+}
+
+/// [`gather_chunk`] with AVX2 (the 8 lanes of a block in one register; the same IEEE
+/// operations in the same order, so the same answer).
+///
+/// # Safety
+/// AVX2 must be available.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gather_chunk_avx2(
+    chunk: &[PoseVote],
+    base: usize,
+    blocks: &[[[f32; GATHER_LANES]; 3]],
+    r2: f32,
+    out: &mut [Vec<u32>],
+) {
+    use std::arch::x86_64::*;
+    let r2v = _mm256_set1_ps(r2);
+    let bv: Vec<[__m256; 3]> = blocks
+        .iter()
+        .map(|b| {
+            [
+                _mm256_loadu_ps(b[0].as_ptr()),
+                _mm256_loadu_ps(b[1].as_ptr()),
+                _mm256_loadu_ps(b[2].as_ptr()),
+            ]
+        })
+        .collect();
+    for (i, v) in chunk.iter().enumerate() {
+        if v.weight <= 0.0 {
+            continue;
+        }
+        let (px, py, pz) = (
+            _mm256_set1_ps(v.position[0]),
+            _mm256_set1_ps(v.position[1]),
+            _mm256_set1_ps(v.position[2]),
+        );
+        for (bi, b) in bv.iter().enumerate() {
+            let (dx, dy, dz) = (
+                _mm256_sub_ps(px, b[0]),
+                _mm256_sub_ps(py, b[1]),
+                _mm256_sub_ps(pz, b[2]),
+            );
+            let d2 = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)),
+                _mm256_mul_ps(dz, dz),
+            );
+            let mut mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(d2, r2v)) as u32;
+            while mask != 0 {
+                let l = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                out[bi * GATHER_LANES + l].push((base + i) as u32);
+            }
+        }
+    }
+}
+
 /// Indices of the votes (weight > 0) within `radius` of each centre (tested in `f32`), in vote
 /// order; one pass over the votes, in parallel over fixed chunks, 8 centres per SIMD-friendly
 /// block.
 fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>> {
     const CH: usize = 1 << 14;
-    const B: usize = 8;
+    const B: usize = GATHER_LANES;
     let r2 = (radius * radius) as f32;
     // Centres as blocks of 8 (x, y, z lanes); padding lanes sit far away (never hit).
     let blocks: Vec<[[f32; B]; 3]> = centres
@@ -530,24 +619,15 @@ fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>
         .enumerate()
         .map(|(ci, chunk)| {
             let mut out = vec![Vec::new(); centres.len()];
-            for (i, v) in chunk.iter().enumerate() {
-                if v.weight <= 0.0 {
-                    continue;
-                }
-                let p = v.position;
-                for (bi, b) in blocks.iter().enumerate() {
-                    let mut mask = 0u32;
-                    for l in 0..B {
-                        let (dx, dy, dz) = (p[0] - b[0][l], p[1] - b[1][l], p[2] - b[2][l]);
-                        mask |= u32::from(dx * dx + dy * dy + dz * dz < r2) << l;
-                    }
-                    while mask != 0 {
-                        let l = mask.trailing_zeros() as usize;
-                        mask &= mask - 1;
-                        out[bi * B + l].push((ci * CH + i) as u32);
-                    }
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: AVX2 is available.
+                    unsafe { gather_chunk_avx2(chunk, ci * CH, &blocks, r2, &mut out) };
+                    return out;
                 }
             }
+            gather_chunk(chunk, ci * CH, &blocks, r2, &mut out);
             out
         })
         .collect();
@@ -993,6 +1073,58 @@ mod tests {
             v.swap(i, j);
         }
         (v, t, q)
+    }
+
+    #[test]
+    fn gather_paths_agree() {
+        let (mut votes, _, _) = scene(11);
+        for (i, v) in votes.iter_mut().enumerate() {
+            if i % 97 == 0 {
+                v.weight = 0.0;
+            }
+        }
+        let centres: Vec<[f64; 3]> = votes
+            .iter()
+            .step_by(1500)
+            .take(13)
+            .map(|v| v.position.map(f64::from))
+            .collect();
+        let radius = 0.24;
+        let all = gather(&votes, &centres, radius);
+        let r2 = (radius * radius) as f32;
+        for (c, got) in centres.iter().zip(&all) {
+            let want: Vec<u32> = (0..votes.len() as u32)
+                .filter(|&i| {
+                    let v = &votes[i as usize];
+                    let p = v.position;
+                    let d = [p[0] - c[0] as f32, p[1] - c[1] as f32, p[2] - c[2] as f32];
+                    v.weight > 0.0 && d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r2
+                })
+                .collect();
+            assert!(!want.is_empty());
+            assert_eq!(*got, want);
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let mut b = [[1e18f32; GATHER_LANES]; 3];
+            let blocks: Vec<[[f32; GATHER_LANES]; 3]> = centres
+                .chunks(GATHER_LANES)
+                .map(|blk| {
+                    for (l, c) in blk.iter().enumerate() {
+                        for a in 0..3 {
+                            b[a][l] = c[a] as f32;
+                        }
+                    }
+                    b
+                })
+                .collect();
+            let mut fast = vec![Vec::new(); blocks.len() * GATHER_LANES];
+            let mut portable = fast.clone();
+            // SAFETY: AVX2 is available.
+            unsafe { gather_chunk_avx2(&votes, 5, &blocks, r2, &mut fast) };
+            gather_chunk(&votes, 5, &blocks, r2, &mut portable);
+            assert_eq!(fast, portable);
+        }
     }
 
     fn tdist(a: [f64; 3], b: [f64; 3]) -> f64 {
