@@ -515,6 +515,7 @@ fn gather_chunk(
     chunk: &[PoseVote],
     base: usize,
     blocks: &[[[f32; GATHER_LANES]; 3]],
+    ids: &[[u32; GATHER_LANES]],
     r2: f32,
     out: &mut [Vec<u32>],
 ) {
@@ -524,7 +525,7 @@ fn gather_chunk(
             continue;
         }
         let p = v.position;
-        for (bi, b) in blocks.iter().enumerate() {
+        for (b, id) in blocks.iter().zip(ids) {
             let mut mask = 0u32;
             for l in 0..B {
                 let (dx, dy, dz) = (p[0] - b[0][l], p[1] - b[1][l], p[2] - b[2][l]);
@@ -533,7 +534,7 @@ fn gather_chunk(
             while mask != 0 {
                 let l = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                out[bi * B + l].push((base + i) as u32);
+                out[id[l] as usize].push((base + i) as u32);
             }
         }
     }
@@ -550,6 +551,7 @@ unsafe fn gather_chunk_avx2(
     chunk: &[PoseVote],
     base: usize,
     blocks: &[[[f32; GATHER_LANES]; 3]],
+    ids: &[[u32; GATHER_LANES]],
     r2: f32,
     out: &mut [Vec<u32>],
 ) {
@@ -574,7 +576,7 @@ unsafe fn gather_chunk_avx2(
             _mm256_set1_ps(v.position[1]),
             _mm256_set1_ps(v.position[2]),
         );
-        for (bi, b) in bv.iter().enumerate() {
+        for (b, id) in bv.iter().zip(ids) {
             let (dx, dy, dz) = (
                 _mm256_sub_ps(px, b[0]),
                 _mm256_sub_ps(py, b[1]),
@@ -588,7 +590,7 @@ unsafe fn gather_chunk_avx2(
             while mask != 0 {
                 let l = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                out[bi * GATHER_LANES + l].push((base + i) as u32);
+                out[id[l] as usize].push((base + i) as u32);
             }
         }
     }
@@ -600,34 +602,85 @@ unsafe fn gather_chunk_avx2(
 fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>> {
     const CH: usize = 1 << 14;
     const B: usize = GATHER_LANES;
+    /// Votes per bounding box (consecutive votes come from neighbouring parts, so they are
+    /// close in space and most boxes are far from most centres).
+    const SUB: usize = 64;
     let r2 = (radius * radius) as f32;
-    // Centres as blocks of 8 (x, y, z lanes); padding lanes sit far away (never hit).
-    let blocks: Vec<[[f32; B]; 3]> = centres
-        .chunks(B)
-        .map(|blk| {
-            let mut b = [[1e18f32; B]; 3];
-            for (l, c) in blk.iter().enumerate() {
-                for a in 0..3 {
-                    b[a][l] = c[a] as f32;
-                }
-            }
-            b
-        })
-        .collect();
+    // A box farther than this from a centre holds no vote within `radius` of it: the margin
+    // covers the rounding of the f32 distance test (relative error ~1e-7).
+    let prune2 = (radius * radius) * (1.0 + 1e-4) + 1e-12;
+    let cf: Vec<[f32; 3]> = centres.iter().map(|c| c.map(|x| x as f32)).collect();
+    let avx2 = {
+        #[cfg(target_arch = "x86_64")]
+        {
+            std::arch::is_x86_feature_detected!("avx2")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            false
+        }
+    };
     let parts: Vec<Vec<Vec<u32>>> = votes
         .par_chunks(CH)
         .enumerate()
         .map(|(ci, chunk)| {
             let mut out = vec![Vec::new(); centres.len()];
-            #[cfg(target_arch = "x86_64")]
-            {
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: AVX2 is available.
-                    unsafe { gather_chunk_avx2(chunk, ci * CH, &blocks, r2, &mut out) };
-                    return out;
+            let mut blocks: Vec<[[f32; B]; 3]> = Vec::new();
+            let mut ids: Vec<[u32; B]> = Vec::new();
+            for (si, sub) in chunk.chunks(SUB).enumerate() {
+                // Bounding box of the sub-block's votes (weight > 0).
+                let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+                for v in sub.iter().filter(|v| v.weight > 0.0) {
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(v.position[a]);
+                        hi[a] = hi[a].max(v.position[a]);
+                    }
                 }
+                if lo[0] > hi[0] {
+                    continue;
+                }
+                // The centres whose ball meets the box, packed 8 to a block (padding lanes far
+                // away: never hit).
+                blocks.clear();
+                ids.clear();
+                let mut n_sel = 0usize;
+                for (c, p) in cf.iter().enumerate() {
+                    let d2: f64 = (0..3)
+                        .map(|a| {
+                            let d = (f64::from(lo[a]) - f64::from(p[a]))
+                                .max(f64::from(p[a]) - f64::from(hi[a]))
+                                .max(0.0);
+                            d * d
+                        })
+                        .sum();
+                    if d2 > prune2 {
+                        continue;
+                    }
+                    let l = n_sel % B;
+                    n_sel += 1;
+                    if l == 0 {
+                        blocks.push([[1e18f32; B]; 3]);
+                        ids.push([0; B]);
+                    }
+                    let b = blocks.last_mut().unwrap();
+                    for a in 0..3 {
+                        b[a][l] = p[a];
+                    }
+                    ids.last_mut().unwrap()[l] = c as u32;
+                }
+                if blocks.is_empty() {
+                    continue;
+                }
+                let base = ci * CH + si * SUB;
+                #[cfg(target_arch = "x86_64")]
+                if avx2 {
+                    // SAFETY: AVX2 is available.
+                    unsafe { gather_chunk_avx2(sub, base, &blocks, &ids, r2, &mut out) };
+                    continue;
+                }
+                let _ = avx2;
+                gather_chunk(sub, base, &blocks, &ids, r2, &mut out);
             }
-            gather_chunk(chunk, ci * CH, &blocks, r2, &mut out);
             out
         })
         .collect();
@@ -1090,19 +1143,29 @@ mod tests {
             .map(|v| v.position.map(f64::from))
             .collect();
         let radius = 0.24;
-        let all = gather(&votes, &centres, radius);
         let r2 = (radius * radius) as f32;
-        for (c, got) in centres.iter().zip(&all) {
-            let want: Vec<u32> = (0..votes.len() as u32)
-                .filter(|&i| {
-                    let v = &votes[i as usize];
-                    let p = v.position;
-                    let d = [p[0] - c[0] as f32, p[1] - c[1] as f32, p[2] - c[2] as f32];
-                    v.weight > 0.0 && d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r2
-                })
-                .collect();
-            assert!(!want.is_empty());
-            assert_eq!(*got, want);
+        // Shuffled votes (boxes of consecutive votes span everything), then votes sorted along
+        // x (compact boxes: most are pruned), and centres on the ball's rim.
+        let mut sorted = votes.clone();
+        sorted.sort_by(|a, b| a.position[0].total_cmp(&b.position[0]));
+        let mut rim = centres.clone();
+        let p0 = sorted[4000].position.map(f64::from);
+        rim.push([p0[0] + radius, p0[1], p0[2]]);
+        rim.push([p0[0], p0[1] - radius * 0.999_999, p0[2]]);
+        for (votes, centres) in [(&votes, &centres), (&sorted, &rim)] {
+            let all = gather(votes, centres, radius);
+            for (c, got) in centres.iter().zip(&all) {
+                let want: Vec<u32> = (0..votes.len() as u32)
+                    .filter(|&i| {
+                        let v = &votes[i as usize];
+                        let p = v.position;
+                        let d = [p[0] - c[0] as f32, p[1] - c[1] as f32, p[2] - c[2] as f32];
+                        v.weight > 0.0 && d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r2
+                    })
+                    .collect();
+                assert!(!want.is_empty());
+                assert_eq!(*got, want);
+            }
         }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
@@ -1118,11 +1181,14 @@ mod tests {
                     b
                 })
                 .collect();
+            let ids: Vec<[u32; GATHER_LANES]> = (0..blocks.len())
+                .map(|bi| std::array::from_fn(|l| (bi * GATHER_LANES + l) as u32))
+                .collect();
             let mut fast = vec![Vec::new(); blocks.len() * GATHER_LANES];
             let mut portable = fast.clone();
             // SAFETY: AVX2 is available.
-            unsafe { gather_chunk_avx2(&votes, 5, &blocks, r2, &mut fast) };
-            gather_chunk(&votes, 5, &blocks, r2, &mut portable);
+            unsafe { gather_chunk_avx2(&votes, 5, &blocks, &ids, r2, &mut fast) };
+            gather_chunk(&votes, 5, &blocks, &ids, r2, &mut portable);
             assert_eq!(fast, portable);
         }
     }
