@@ -45,20 +45,13 @@ def test_empty_training_set_is_a_data_error():
 
 
 def test_predict_reads_the_models_defaults_and_explicit_parameters_win():
-    from test_vote import K, backproject, plate
+    from test_vote import K, plate, plate_training_set
 
     from isa import _core
     from isa.camera import Intrinsics
     from isa.forest import Forest, ForestParams
 
-    images, ssc = [], []
-    for c in [(0.0, 0.0, 1.5), (0.05, -0.03, 1.4)]:
-        d, s = plate(centre=c)
-        images.append(d)
-        ssc.append(s)
-    parts = _core.sample_parts(images, stride=2)
-    offsets = np.stack([ssc[i] - backproject(images[i], K)[v, u] for i, u, v in parts]).astype(np.float32)
-    rotations = np.tile(np.array([1, 0, 0, 0], np.float32), (len(parts), 1))
+    images, parts, offsets, rotations = plate_training_set()
     f = Forest(ForestParams(n_trees=2, max_depth=10, n_candidates=30, max_offset=60.0, quality="Q1"))
     f.fit(images, parts, offsets, rotations, metadata={"predict_defaults": {"stride": 2}})
     depth, _ = plate(centre=(0.02, 0.0, 1.5))

@@ -38,16 +38,22 @@ def backproject(depth, K):
     return np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], -1)
 
 
-@pytest.fixture(scope="module")
-def trained():
+def plate_training_set(centres=((0.0, 0.0, 1.5), (0.05, -0.03, 1.4), (-0.04, 0.02, 1.6))):
+    """Plates at ``centres``: images, parts (stride 2), SSC offsets and identity rotations."""
     images, ssc = [], []
-    for c in [(0.0, 0.0, 1.5), (0.05, -0.03, 1.4), (-0.04, 0.02, 1.6)]:
+    for c in centres:
         d, s = plate(centre=c)
         images.append(d)
         ssc.append(s)
     parts = _core.sample_parts(images, stride=2)
     offsets = np.stack([ssc[i] - backproject(images[i], K)[v, u] for i, u, v in parts]).astype(np.float32)
     rotations = np.tile(np.array([1, 0, 0, 0], np.float32), (len(parts), 1))
+    return images, parts, offsets, rotations
+
+
+@pytest.fixture(scope="module")
+def trained():
+    images, parts, offsets, rotations = plate_training_set()
     f = _core.Forest(**FOREST_PARAMS)
     f.fit(images, parts, offsets, rotations)
     return f, images, parts, offsets, rotations

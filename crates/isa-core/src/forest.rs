@@ -254,19 +254,29 @@ pub(crate) mod tests {
         }
     }
 
-    #[test]
-    fn toy_problem_is_recovered() {
-        let (store, parts, off, rot) = toy(2);
-        let data = TrainingSet {
-            store: &store,
-            parts: &parts,
+    /// A Q1 training set (no privileged data) over the toy arrays.
+    fn q1_set<'a>(
+        store: &'a DepthStore,
+        parts: &'a [Part],
+        off: &'a [f32],
+        rot: &'a [f32],
+    ) -> TrainingSet<'a> {
+        TrainingSet {
+            store,
+            parts,
             targets: RawTargets {
-                offsets: &off,
-                rotations: &rot,
+                offsets: off,
+                rotations: rot,
                 link_angles: None,
                 node_offsets: None,
             },
-        };
+        }
+    }
+
+    #[test]
+    fn toy_problem_is_recovered() {
+        let (store, parts, off, rot) = toy(2);
+        let data = q1_set(&store, &parts, &off, &rot);
         let f = Forest::fit(&toy_params(), &data, "{}", None).unwrap();
         let leaves = f.apply(&store, &parts).unwrap();
         let mut good = 0;
@@ -296,16 +306,7 @@ pub(crate) mod tests {
     #[test]
     fn deterministic_across_thread_counts() {
         let (store, parts, off, rot) = toy(2);
-        let data = TrainingSet {
-            store: &store,
-            parts: &parts,
-            targets: RawTargets {
-                offsets: &off,
-                rotations: &rot,
-                link_angles: None,
-                node_offsets: None,
-            },
-        };
+        let data = q1_set(&store, &parts, &off, &rot);
         let p = ForestParams {
             max_score_samples: 300,
             bag_fraction: 0.7,
@@ -323,25 +324,15 @@ pub(crate) mod tests {
     #[test]
     fn progress_reports_each_tree_in_order_and_changes_nothing() {
         let (store, parts, off, rot) = toy(2);
-        let data = TrainingSet {
-            store: &store,
-            parts: &parts,
-            targets: RawTargets {
-                offsets: &off,
-                rotations: &rot,
-                link_angles: None,
-                node_offsets: None,
-            },
-        };
+        let data = q1_set(&store, &parts, &off, &rot);
         let p = ForestParams {
             n_trees: 3,
             ..toy_params()
         };
         let seen = std::sync::Mutex::new(Vec::new());
-        let with = Forest::fit_with_progress(&p, &data, "{}", Some(2), &|k| {
-            seen.lock().unwrap().push(k)
-        })
-        .unwrap();
+        let with =
+            Forest::fit_with_progress(&p, &data, "{}", Some(2), &|k| seen.lock().unwrap().push(k))
+                .unwrap();
         assert_eq!(*seen.lock().unwrap(), vec![1, 2, 3]);
         let without = Forest::fit(&p, &data, "{}", Some(2)).unwrap();
         assert_eq!(with.to_bytes(), without.to_bytes());
