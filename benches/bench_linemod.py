@@ -142,6 +142,29 @@ def print_timings(timings: dict, detector, title: str) -> None:
         )
 
 
+def print_isa_ratio(model: Path, depths: Sequence[np.ndarray], intrinsics, timings: dict, repeats: int) -> None:
+    """ISA's whole-frame inference (``Forest.predict``: parts, every tree, votes, modes) on the
+    same images, each frame's fastest of ``repeats`` runs after one warm-up call, and Linemod's
+    time per frame divided by it."""
+    from isa.forest import Forest
+
+    forest = Forest.load(model)
+    forest.predict(depths[0], intrinsics)
+    ms = np.full((len(depths), max(1, repeats)), np.inf)
+    for i, d in enumerate(depths):
+        for r in range(ms.shape[1]):
+            t0 = time.perf_counter()
+            forest.predict(d, intrinsics)
+            ms[i, r] = (time.perf_counter() - t0) * 1e3
+    isa_ms = float(np.median(ms.min(1)))
+    print(f"\nISA {model.name} ({forest.n_trees} trees, deepest {max(forest.depths)}), same images: "
+          f"median {isa_ms:.1f} ms per frame")
+    print("| Linemod threshold | Linemod match() median ms | ISA median ms | Linemod / ISA |\n|---:|---:|---:|---:|")
+    for th, t in timings.items():
+        lm = float(np.median(t["match_ms"]))
+        print(f"| {th:g} | {lm:.1f} | {isa_ms:.1f} | {lm / isa_ms:.2f}x |")
+
+
 def recall_protocol(train, frames, test_objects, renderer, n_views: int, z: float = 0.1, seed: int = 0, distance=None):
     """The paper's Linemod protocol on the given frames: returns (recall with Linemod's translation,
     recall with the true translation substituted), both :class:`isa.linemod.LinemodRecall`."""
@@ -180,6 +203,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0, 80], help="match similarity thresholds (%%)")
     ap.add_argument("--procedural", action="store_true", help="procedural objects even when ModelNet10 is present")
     ap.add_argument("--recall", action="store_true", help="also run the paper's per-instance recall protocol")
+    ap.add_argument("--model", type=Path, default=None,
+                    help="an ISA model (.isa, e.g. out/paper/models/chair-Q1Q2Q3.isa): time its whole-frame "
+                         "inference on the same test images and print the ratio to Linemod")
     ap.add_argument("--test-images", type=int, default=264, help="test images for --recall (paper: 264)")
     ap.add_argument("--distance", type=float, nargs=2, default=[1.5, 4.0], metavar=("MIN", "MAX"),
                     help="camera distance range of the test images, metres (default 1.5-4 as the training views)")
@@ -209,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     timings = linemod_timings(det, [f.depth for f in frames], a.thresholds, a.repeats)
     print_timings(timings, det, f"per-frame matching time on {len(frames)} test images of unseen {a.category}s")
     del det
+    if a.model is not None:
+        print_isa_ratio(a.model, [f.depth for f in frames], KINECT_V1, timings, a.repeats)
 
     if a.recall:
         t0 = time.perf_counter()
