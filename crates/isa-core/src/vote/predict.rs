@@ -341,14 +341,17 @@ fn collect_votes(
                 .collect();
             let nb = block.len();
             let mut leaves = vec![0u32; nb * n_trees];
-            for (t, row) in leaves.chunks_mut(nb).enumerate() {
-                match &flat {
+            // Trees in parallel too: an object-only frame is a single block. Each tree writes
+            // its own row, so the result does not depend on scheduling.
+            leaves
+                .par_chunks_mut(nb)
+                .enumerate()
+                .for_each(|(t, row)| match &flat {
                     // SAFETY: AVX2 checked by `FlatTree::available`; `img` is an image of a
                     // DepthStore (padding pixel after it).
                     Some(f) => unsafe { f[t].leaves(&img, &pix, row) },
                     None => leaves_batched(&forest.trees[t], &img, &pix, row),
-                }
-            }
+                });
             let mut counts = vec![0usize; nb.div_ceil(CHUNK)];
             for (t, tree) in forest.trees.iter().enumerate() {
                 let row = &leaves[t * nb..(t + 1) * nb];
