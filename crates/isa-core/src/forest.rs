@@ -49,6 +49,8 @@ pub struct Forest {
     pub metadata: String,
     /// Version of the crate that trained (or wrote) this forest.
     pub crate_version: String,
+    /// The trees prepared for fast inference (built on the first prediction).
+    pub(crate) flat: crate::vote::traverse::FlatCache,
 }
 
 /// Runs `f` on a pool of `n_threads` threads, or on rayon's global pool when `None`.
@@ -147,6 +149,7 @@ impl Forest {
                 trees,
                 metadata: metadata.to_string(),
                 crate_version: crate::VERSION.to_string(),
+                flat: Default::default(),
             })
         })?
     }

@@ -257,6 +257,7 @@ pub fn decode_payload(payload: &[u8]) -> R<Forest> {
         trees,
         metadata,
         crate_version,
+        flat: Default::default(),
     })
 }
 

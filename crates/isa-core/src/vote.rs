@@ -47,7 +47,7 @@
 
 pub mod predict;
 pub mod synth;
-mod traverse;
+pub(crate) mod traverse;
 
 pub use predict::{
     depth_m_to_mm, image_votes, predict, DepthImage, ImageVotes, Intrinsics, PredictParams,

@@ -20,6 +20,7 @@ use crate::features::BACKGROUND_MM;
 use crate::forest::Forest;
 use crate::tree::Tree;
 
+#[cfg(test)]
 use super::traverse::FlatTree;
 
 /// Pinhole intrinsics (pixels), OpenCV convention: pixel centres at integer `(u, v)`.
@@ -320,11 +321,7 @@ fn collect_votes(
     let min_w = params.min_leaf_weight;
     let img = store.image(0);
     // The AVX2 traversal, when the CPU has it and every tree is well formed.
-    let flat: Option<Vec<FlatTree>> = if FlatTree::available() {
-        forest.trees.par_iter().map(FlatTree::new).collect()
-    } else {
-        None
-    };
+    let flat = forest.flat.get(&forest.trees);
     let kept = |tree: &Tree, leaf: u32| -> usize {
         tree.leaf_votes(leaf as usize)
             .iter()
@@ -513,6 +510,7 @@ mod tests {
             trees: vec![tree; n],
             metadata: String::new(),
             crate_version: crate::VERSION.into(),
+            flat: Default::default(),
         }
     }
 
@@ -522,6 +520,48 @@ mod tests {
         cx: 15.5,
         cy: 11.5,
     };
+
+    #[test]
+    fn prepared_trees_follow_replaced_trees() {
+        use crate::criterion::RawTargets;
+        use crate::forest::tests::{toy, toy_params};
+        let (store, parts, off, rot) = toy(2);
+        let data = TrainingSet {
+            store: &store,
+            parts: &parts,
+            targets: RawTargets {
+                offsets: &off,
+                rotations: &rot,
+                link_angles: None,
+                node_offsets: None,
+            },
+        };
+        let mut a = Forest::fit(&toy_params(), &data, "{}", Some(1)).unwrap();
+        let b = Forest::fit(
+            &ForestParams {
+                seed: 7,
+                ..toy_params()
+            },
+            &data,
+            "{}",
+            Some(1),
+        )
+        .unwrap();
+        let (w, h) = (64usize, 48usize);
+        let depth: Vec<u16> = (0..w * h).map(|i| 1000 + ((i * 37) % 900) as u16).collect();
+        let img = DepthImage::new(&depth, w, h).unwrap();
+        let p = PredictParams {
+            stride: 2,
+            ..Default::default()
+        };
+        let votes = |f: &Forest| image_votes(f, &img, &K, &p).unwrap().votes;
+        let va = votes(&a);
+        assert_eq!(votes(&a), va); // from the cache
+        let vb = votes(&b.clone()); // a clone prepares its own trees
+        assert_ne!(va, vb);
+        a.trees = b.trees.clone();
+        assert_eq!(votes(&a), vb);
+    }
 
     #[test]
     fn votes_are_back_projected_part_centres_plus_offsets() {

@@ -35,6 +35,56 @@ pub(crate) enum FlatTree {
     Nodes(Vec<FlatNode>),
 }
 
+/// A forest's trees prepared for the fast traversal, built on first use and kept with the forest
+/// (converting a paper-scale forest takes milliseconds, as long as traversing a whole object).
+/// Keyed by each tree's node array (address and length): a forest whose `trees` are replaced or
+/// resized is prepared again. Equality, `Debug` and `Clone` ignore it (a clone prepares its own).
+#[derive(Default)]
+pub(crate) struct FlatCache(std::sync::OnceLock<(Vec<(usize, usize)>, Option<Vec<FlatTree>>)>);
+
+impl FlatCache {
+    /// The prepared trees of `trees` (`None`: no AVX2, or a tree unfit for the fast path).
+    pub(crate) fn get(
+        &self,
+        trees: &[crate::tree::Tree],
+    ) -> Option<std::borrow::Cow<'_, [FlatTree]>> {
+        use rayon::prelude::*;
+        use std::borrow::Cow;
+        if !FlatTree::available() {
+            return None;
+        }
+        let key: Vec<(usize, usize)> = trees
+            .iter()
+            .map(|t| (t.nodes.as_ptr() as usize, t.nodes.len()))
+            .collect();
+        let build = || -> Option<Vec<FlatTree>> { trees.par_iter().map(FlatTree::new).collect() };
+        let (k, flat) = self.0.get_or_init(|| (key.clone(), build()));
+        if *k == key {
+            flat.as_deref().map(Cow::Borrowed)
+        } else {
+            build().map(Cow::Owned)
+        }
+    }
+}
+
+impl Clone for FlatCache {
+    fn clone(&self) -> Self {
+        FlatCache::default()
+    }
+}
+
+impl PartialEq for FlatCache {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for FlatCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("FlatCache")
+    }
+}
+
 impl FlatTree {
     /// `None` when the tree is not well formed for the fast path (children must come after
     /// their parent and be in range, as model files and the builder guarantee; ids must fit
