@@ -258,7 +258,7 @@ pub(crate) mod tests {
     }
 
     /// A Q1 training set (no privileged data) over the toy arrays.
-    fn q1_set<'a>(
+    pub(crate) fn q1_set<'a>(
         store: &'a DepthStore,
         parts: &'a [Part],
         off: &'a [f32],

@@ -523,19 +523,9 @@ mod tests {
 
     #[test]
     fn prepared_trees_follow_replaced_trees() {
-        use crate::criterion::RawTargets;
-        use crate::forest::tests::{toy, toy_params};
+        use crate::forest::tests::{q1_set, toy, toy_params};
         let (store, parts, off, rot) = toy(2);
-        let data = TrainingSet {
-            store: &store,
-            parts: &parts,
-            targets: RawTargets {
-                offsets: &off,
-                rotations: &rot,
-                link_angles: None,
-                node_offsets: None,
-            },
-        };
+        let data = q1_set(&store, &parts, &off, &rot);
         let mut a = Forest::fit(&toy_params(), &data, "{}", Some(1)).unwrap();
         let b = Forest::fit(
             &ForestParams {
