@@ -145,7 +145,7 @@ def training_set(frames: Sequence[bop.BopFrame], skeletons: dict[int, SkeletonGr
 #: :func:`parts_diameter`), so large categories (tables, beds) get probes and kernels that fit them.
 #: Chosen on held-out ModelNet *training* instances (``python -m isa.experiment --validation``),
 #: never on test instances: table recall rose from 5% (probes fixed at 150 px·m = 0.26 m) to 21%
-#: at 400 px·m (0.34 of its 2 m diameter) and 35% at 800 px·m (0.68); see docs/results.md.
+#: at 400 px·m (0.34 of its 2 m diameter) and 35% at 800 px·m (0.68); see docs/experiments.md.
 PROBE_REACH = 0.7
 #: Position kernel radius of the Hough voting at inference (default 0.08 m suits a 1 m chair).
 VOTE_BANDWIDTH = 0.09
@@ -171,7 +171,7 @@ def scaled_params(params: ForestParams, ts: TrainingSet, fx: float) -> ForestPar
 
 
 def scaled_predict_defaults(ts: TrainingSet) -> dict:
-    """Inference defaults stored in a model's metadata (``predict_defaults``), read by :func:`predict`."""
+    """Inference defaults stored in a model's metadata (``predict_defaults``), read by :meth:`isa.forest.Forest.predict`."""
     return {"position_bandwidth": round(VOTE_BANDWIDTH * parts_diameter(ts), 4)}
 
 
