@@ -434,8 +434,33 @@ fn load_model(path: &Path) -> CliResult<Forest> {
     Ok(Forest::load(path)?)
 }
 
-fn predict_params(a: &PredictArgs) -> CliResult<PredictParams> {
+/// The inference defaults a model carries in its metadata (`predict_defaults`, flat keys as in
+/// Python's `Forest.predict`, e.g. the size-aware `position_bandwidth`), nested as
+/// [`PredictParams`]; keys this version does not know are ignored (the metadata is opaque).
+fn model_predict_defaults(forest: &Forest) -> Option<Value> {
+    let meta: Value = serde_json::from_str(&forest.metadata).ok()?;
+    let flat = meta.get("predict_defaults")?.as_object()?;
+    let base = serde_json::to_value(PredictParams::default()).expect("serialise");
+    let (top_keys, vote_keys) = (base.as_object()?, base.get("vote")?.as_object()?);
+    let (mut top, mut vote) = (serde_json::Map::new(), serde_json::Map::new());
+    for (k, v) in flat {
+        if k != "vote" && top_keys.contains_key(k) {
+            top.insert(k.clone(), v.clone());
+        } else if vote_keys.contains_key(k) {
+            vote.insert(k.clone(), v.clone());
+        }
+    }
+    top.insert("vote".into(), Value::Object(vote));
+    Some(Value::Object(top))
+}
+
+/// Inference parameters: defaults, then the model's `predict_defaults` (if given), then the
+/// parameter file, then the flags.
+fn predict_params(a: &PredictArgs, model_defaults: Option<&Value>) -> CliResult<PredictParams> {
     let mut p = serde_json::to_value(PredictParams::default()).expect("serialise");
+    if let Some(d) = model_defaults {
+        overlay(&mut p, d, "model predict_defaults")?;
+    }
     if let Some(path) = &a.params {
         overlay(
             &mut p,
@@ -582,11 +607,12 @@ fn jobs(a: &PredictArgs) -> CliResult<(Vec<ImageJob>, Option<u64>)> {
 }
 
 fn predict(a: PredictArgs) -> CliResult<()> {
-    let params = predict_params(&a)?;
+    predict_params(&a, None)?; // bad flags or parameter files fail before a model is read
     let (jobs, scene_id) = jobs(&a)?;
     let pb = spinner(a.quiet, format!("loading {}", a.model.display()));
     let forest = load_model(&a.model)?;
     pb.finish_and_clear();
+    let params = predict_params(&a, model_predict_defaults(&forest).as_ref())?;
     if forest.n_trees() == 0 {
         return Err(CliError::input(format!(
             "model file {}: the forest has no trees",

@@ -41,7 +41,7 @@ fn poses() -> Vec<([[f64; 3]; 3], [f64; 3])> {
 }
 
 /// A training set of 12 views of the synthetic chair (160x120).
-fn write_trainset(path: &Path) {
+fn write_trainset(path: &Path, metadata: &str) {
     let chair = synth::chair();
     let mut store = DepthStore::new();
     let poses = poses();
@@ -65,7 +65,7 @@ fn write_trainset(path: &Path) {
         rotations,
         link_angles: None,
         node_offsets: None,
-        metadata: r#"{"category": "chair", "ssc": [0, 0, 0]}"#.into(),
+        metadata: metadata.into(),
     };
     trainset_io::write(&ts, path).unwrap();
 }
@@ -75,7 +75,7 @@ fn model() -> &'static PathBuf {
     static MODEL: OnceLock<PathBuf> = OnceLock::new();
     MODEL.get_or_init(|| {
         let ts = tmp("chair.isat");
-        write_trainset(&ts);
+        write_trainset(&ts, r#"{"category": "chair", "ssc": [0, 0, 0]}"#);
         let m = tmp("chair.isaf");
         let o = isa(&[
             "train",
@@ -186,6 +186,55 @@ fn train_inspect_predict_round_trip() {
     let scores: Vec<f64> = hyps.iter().map(|h| h["score"].as_f64().unwrap()).collect();
     assert!(scores.windows(2).all(|w| w[0] >= w[1]));
     assert_eq!(doc["params"]["stride"], 2);
+}
+
+#[test]
+fn predict_reads_the_models_defaults_and_flags_win() {
+    let ts = tmp("defaults.isat");
+    // As Python's pipeline.train_forest stores them (flat keys), plus one this version lacks.
+    write_trainset(
+        &ts,
+        r#"{"predict_defaults": {"stride": 3, "max_hypotheses": 1, "from_the_future": 1}}"#,
+    );
+    let m = tmp("defaults.isaf");
+    let o = isa(&[
+        "train",
+        ts.to_str().unwrap(),
+        "-o",
+        m.to_str().unwrap(),
+        "--n-trees",
+        "2",
+        "--max-depth",
+        "10",
+        "--quality",
+        "Q1",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "train failed: {}", stderr(&o));
+    let (depth, k, _, _) = test_view(5);
+    let png = tmp("defaults-view5.png");
+    write_png(&png, 320, 240, depth);
+    let kk = [
+        k.fx.to_string(),
+        k.fy.to_string(),
+        k.cx.to_string(),
+        k.cy.to_string(),
+    ];
+    let run = |extra: &[&str]| -> serde_json::Value {
+        let mut args = vec!["predict", m.to_str().unwrap(), png.to_str().unwrap(), "-k"];
+        args.extend(kk.iter().map(|s| s.as_str()));
+        args.extend_from_slice(extra);
+        let o = isa(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let doc = run(&[]);
+    assert_eq!(doc["params"]["stride"], 3);
+    assert_eq!(doc["params"]["vote"]["max_hypotheses"], 1);
+    assert!(doc["images"][0]["hypotheses"].as_array().unwrap().len() <= 1);
+    let doc = run(&["--stride", "2", "--max-hypotheses", "4"]);
+    assert_eq!(doc["params"]["stride"], 2);
+    assert_eq!(doc["params"]["vote"]["max_hypotheses"], 4);
 }
 
 #[test]
@@ -477,7 +526,7 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     assert_eq!(o.status.code(), Some(5));
     assert!(stderr(&o).contains("bandwith"), "{}", stderr(&o));
     let ts = tmp("q2.isat");
-    write_trainset(&ts);
+    write_trainset(&ts, "{}");
     let o = isa(&[
         "train",
         ts.to_str().unwrap(),
