@@ -310,6 +310,18 @@ fn read_json_file(path: &Path, what: &str) -> CliResult<Value> {
         .map_err(|e| CliError::param(format!("{what} {}: not valid JSON: {e}", path.display())))
 }
 
+/// Overlays the `--params` JSON file (if given) on `base`.
+fn overlay_params_file(base: &mut Value, path: Option<&Path>) -> CliResult<()> {
+    match path {
+        Some(path) => overlay(
+            base,
+            &read_json_file(path, "parameter file")?,
+            &format!("parameter file {}", path.display()),
+        ),
+        None => Ok(()),
+    }
+}
+
 /// Overlays the keys of `over` on `base` (both objects); unknown keys are errors naming them.
 fn overlay(base: &mut Value, over: &Value, what: &str) -> CliResult<()> {
     let o = over
@@ -339,13 +351,7 @@ fn overlay(base: &mut Value, over: &Value, what: &str) -> CliResult<()> {
 
 fn train(a: TrainArgs) -> CliResult<()> {
     let mut p = serde_json::to_value(ForestParams::default()).expect("serialise");
-    if let Some(path) = &a.params {
-        overlay(
-            &mut p,
-            &read_json_file(path, "parameter file")?,
-            &format!("parameter file {}", path.display()),
-        )?;
-    }
+    overlay_params_file(&mut p, a.params.as_deref())?;
     let mut flags = serde_json::Map::new();
     let mut set = |k: &str, v: Option<Value>| {
         if let Some(v) = v {
@@ -461,13 +467,7 @@ fn predict_params(a: &PredictArgs, model_defaults: Option<&Value>) -> CliResult<
     if let Some(d) = model_defaults {
         overlay(&mut p, d, "model predict_defaults")?;
     }
-    if let Some(path) = &a.params {
-        overlay(
-            &mut p,
-            &read_json_file(path, "parameter file")?,
-            &format!("parameter file {}", path.display()),
-        )?;
-    }
+    overlay_params_file(&mut p, a.params.as_deref())?;
     let mut top = serde_json::Map::new();
     let mut v = serde_json::Map::new();
     let put = |m: &mut serde_json::Map<String, Value>, k: &str, x: Option<Value>| {
