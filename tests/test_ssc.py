@@ -88,3 +88,48 @@ def test_category_ssc_on_procedural_chairs(tmp_path):
     # for the watertight pieces the procedural chair is built from).
     exact = np.array(sum(p.volume * p.center_mass for p in unseen.mesh.split(only_watertight=False)) / sum(p.volume for p in unseen.mesh.split(only_watertight=False)))
     assert np.linalg.norm(centre_of_mass(unseen.mesh) - exact) < 0.03
+
+
+def test_box_centre_origin(tmp_path):
+    """``centre="box"``: the origin is the mesh's bounding-box centre (independent: trimesh's
+    bounds); the SSC is still fitted and kept, and the choice survives save/load."""
+    objs = [generate("chair", s) for s in range(3)]
+    T = template_from_ground_truth([o.skeleton for o in objs], [o.mesh.bounds for o in objs])
+    cat, _, _ = fit_category_ssc([o.mesh for o in objs], T)
+    box = CategorySSC(cat.template, cat.ssc, cat.extract_kw, centre="box")
+    unseen = generate("chair", 101)
+    shifted = unseen.mesh.copy()
+    shifted.apply_translation([0.3, -0.2, 0.5])
+    np.testing.assert_allclose(box.origin(shifted), shifted.bounds.mean(0), atol=1e-12)
+    np.testing.assert_allclose(box.origin(shifted) - box.origin(unseen.mesh), [0.3, -0.2, 0.5], atol=1e-12)
+    box.save(tmp_path / "box.json")
+    loaded = CategorySSC.load(tmp_path / "box.json")
+    assert loaded.centre == "box" and loaded.ssc.nodes.tolist() == cat.ssc.nodes.tolist()
+    with pytest.raises(ValueError, match="centre"):
+        CategorySSC(cat.template, cat.ssc, centre="middle")
+    # ``centre="com"``: the solid's centre of mass, which moves with the mesh (to within a voxel:
+    # the voxel grid is laid on the moved mesh afresh).
+    com = CategorySSC(cat.template, cat.ssc, centre="com")
+    np.testing.assert_allclose(com.origin(unseen.mesh), centre_of_mass(unseen.mesh), atol=1e-12)
+    pitch = unseen.mesh.extents.max() / 80
+    np.testing.assert_allclose(com.origin(shifted) - com.origin(unseen.mesh), [0.3, -0.2, 0.5], atol=pitch)
+
+
+def test_prepare_category_moves_the_chosen_origin_to_zero():
+    from isa.dataset import procedural_objects
+    from isa.pipeline import prepare_category
+
+    objs = procedural_objects("toilet", 3, seed=5)
+    for centre in ("ssc", "com", "box"):
+        prep = prepare_category("toilet", objs, centre=centre, progress=False)
+        assert prep.ssc.centre == centre
+        for o, before in zip(prep.objects, objs):
+            if centre == "box":
+                np.testing.assert_allclose(o.mesh.bounds.mean(0), 0, atol=1e-9)
+            elif centre == "com":
+                np.testing.assert_allclose(centre_of_mass(o.mesh), 0, atol=o.mesh.extents.max() / 80)
+            else:
+                # The recentred skeleton's SSC is at the origin.
+                np.testing.assert_allclose(prep.ssc.ssc.point(prep.skeletons[o.obj_id]), 0, atol=1e-9)
+            # Only a translation: the shape is unchanged.
+            np.testing.assert_allclose(o.mesh.extents, before.mesh.extents, atol=1e-9)

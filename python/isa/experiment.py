@@ -33,6 +33,7 @@ from isa.forest import QUALITIES, ForestParams  # noqa: E402
 from isa.pose_metrics import average_distance, model_points, recall_curve  # noqa: E402
 from isa.published import POSE_RECALL  # noqa: E402
 from isa.report import Report  # noqa: E402
+from isa.ssc import CENTRES  # noqa: E402
 
 PAPER_TEST_IMAGES = 264
 #: Our quality names -> the paper's row names in Table 2 (left).
@@ -58,6 +59,7 @@ class ExperimentConfig:
     real: str | None = None  # SUN RGB-D folder: add the real-data detection section (Table 2 right)
     validation: bool = False  # ModelNet: test on held-out train-split instances (for tuning), not the test split
     ssc_tie_tolerance: int = 0  # nodes within this many votes of the top one share the SSC
+    centre: str | None = None  # object-frame origin, isa.ssc.CENTRES; None: isa.categories.CENTRE
     max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
@@ -96,11 +98,12 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     data = out / "data" / category
     t0 = time.perf_counter()
     train = pipeline.prepare_category(category, _objects(cfg, category, "train"), use_ground_truth=cfg.ground_truth_skeletons,
-                                      tie_tolerance=cfg.ssc_tie_tolerance)
+                                      tie_tolerance=cfg.ssc_tie_tolerance, centre=cfg.centre)
     test = pipeline.prepare_category(category, _objects(cfg, category, "test"), ssc=train.ssc,
                                      use_ground_truth=cfg.ground_truth_skeletons)
     tm["skeletons_ssc"] = time.perf_counter() - t0
     res["ssc"] = train.ssc.ssc.to_dict()
+    res["centre"] = train.ssc.centre
     res["train_instances"] = [o.source for o in train.objects]
     res["test_instances"] = [o.source for o in test.objects]
 
@@ -121,7 +124,8 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     pts = {k: model_points(m) for k, m in models.items()}
     from isa.detection import box_metadata, category_box
 
-    meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "template": train.ssc.template.to_dict(),
+    meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "centre": train.ssc.centre,
+            "template": train.ssc.template.to_dict(),
             "isa_version": __version__, **box_metadata(category_box(train))}
     max_offset = cfg.max_offset if cfg.max_offset is not None else pipeline.scaled_max_offset(ts, train_frames[0].intrinsics.fx)
     res["max_offset"] = max_offset
@@ -204,8 +208,11 @@ def _category_figures(cfg, category, out, report, train, train_frames, test_fram
     p = matched_grid(meshes, sks, report.figure_path(f"{category}-skeletons.png"), columns=7)
     report.image(p, f"{category}: skeletons matched to the category template (node colour = template index)")
     coms = [c - o for c, o in zip(train.coms[:n], train.origins[:n])]
-    p = com_vs_ssc(meshes, coms, [np.zeros(3)] * n, report.figure_path(f"{category}-com-vs-ssc.png"), matched=sks)
-    report.image(p, f"{category}: centres of mass (top) vs the Semantically Selected Center (bottom)")
+    sscs = [train.ssc.ssc.point(s) for s in sks]  # the origin itself unless the category uses its box centre
+    p = com_vs_ssc(meshes, coms, sscs, report.figure_path(f"{category}-com-vs-ssc.png"), matched=sks)
+    origin = {"ssc": "the SSC", "com": "the centre of mass", "box": "the upright box centre"}[train.ssc.centre]
+    report.image(p, f"{category}: centres of mass (top) vs the Semantically Selected Center (bottom); "
+                    f"the object-frame origin is {origin}")
     fs = [train_frames[i] for i in pick[:4]]
     p = depth_with_skeleton([f.depth for f in fs], [train.skeletons[f.obj_id] for f in fs], [(f.R, f.t) for f in fs],
                             fs[0].intrinsics, report.figure_path(f"{category}-projected-skeletons.png"))
@@ -318,6 +325,9 @@ def parser() -> argparse.ArgumentParser:
                    help="largest feature-probe offset, pixel x metres (default: scaled to the category's size)")
     p.add_argument("--ssc-tie-tolerance", type=int, default=0,
                    help="skeleton nodes within this many votes of the most repetitive one share the SSC")
+    p.add_argument("--centre", choices=CENTRES, default=None,
+                   help="object-frame origin: the SSC, the centre of mass or the upright box centre (default: per category, "
+                        "isa.categories.CENTRE)")
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -330,7 +340,7 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         max_offset=a.max_offset,
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
         ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation,
-        ssc_tie_tolerance=a.ssc_tie_tolerance, seed=a.seed)
+        ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:

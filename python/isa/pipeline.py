@@ -20,6 +20,7 @@ from tqdm.auto import tqdm
 from isa import bop
 from isa.annotate import Frame, TrainingSet, build_training_set, quaternion_to_matrix
 from isa.camera import KINECT_V1, Intrinsics
+from isa.categories import CENTRE
 from isa.dataset import ObjectSpec, procedural_objects, render_dataset
 from isa.exceptions import DataError
 from isa.forest import Forest, ForestParams
@@ -89,14 +90,16 @@ def prepare_category(
     use_ground_truth: bool = False,
     progress: bool = True,
     tie_tolerance: int = 0,
+    centre: str | None = None,
 ) -> PreparedCategory:
     """Skeletons matched to the category template, the SSC (fitted here on ``objects`` when
     ``ssc`` is None: the training instances; given: the test instances), and every instance moved
-    so that its SSC is the object-frame origin.
+    so that its origin (the SSC, or its box centre: ``centre``) is the object-frame origin.
 
     ``use_ground_truth``: procedural objects use their true skeletons instead of extraction.
     ``tie_tolerance``: nodes within this many votes of the most repetitive one share the SSC
-    (:func:`isa.ssc.select_ssc`).
+    (:func:`isa.ssc.select_ssc`). ``centre``: ``"ssc"``, ``"com"`` or ``"box"`` (:data:`isa.ssc.CENTRES`),
+    default the category's :data:`isa.categories.CENTRE`; ignored when ``ssc`` is given (it has one).
     """
     if not objects:
         raise DataError(f"prepare_category({category!r}): no instances")
@@ -108,10 +111,11 @@ def prepare_category(
     matched = [m for m, _ in pairs]
     coms = np.array([c for _, c in pairs])
     if ssc is None:
-        ssc = CategorySSC(template, select_ssc(matched, coms, tie_tolerance=tie_tolerance))
+        ssc = CategorySSC(template, select_ssc(matched, coms, tie_tolerance=tie_tolerance),
+                          centre=centre or CENTRE.get(category, "ssc"))
     out_objs, out_sk, origins = [], {}, []
-    for o, sk in zip(objects, matched):
-        origin = ssc.ssc.point(sk)
+    for o, sk, com in zip(objects, matched, coms):
+        origin = ssc.origin_of(sk, o.mesh.bounds, com)
         o2, sk2 = _recentre(o, sk, origin)
         out_objs.append(o2)
         out_sk[o2.obj_id] = sk2

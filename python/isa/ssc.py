@@ -112,30 +112,62 @@ def select_ssc(matched: Sequence[SkeletonGraph], coms: Sequence, tie_tolerance: 
     return SSC(w, votes, matched[0].names, md)
 
 
+#: Object-frame origins a category can use (:attr:`CategorySSC.centre`): ``"ssc"``, the paper's
+#: Semantically Selected Center (a matched skeleton node); ``"com"``, the instance's solid centre
+#: of mass (:func:`centre_of_mass`); ``"box"``, the centre of its upright bounding box. The pose
+#: metric does not depend on the choice (Eq. 14 moves both poses with the origin); how well the
+#: forest predicts the centre of an unseen instance does, and where skeleton matching is
+#: unreliable the SSC is the hardest to predict. Measured per category on validation instances
+#: (docs/experiments.md).
+CENTRES: tuple[str, ...] = ("ssc", "com", "box")
+
+
 @dataclass
 class CategorySSC:
-    """A category's template and SSC: what turns any instance mesh into its object-frame origin."""
+    """A category's template, SSC and object-frame origin rule: what turns any instance mesh into
+    its object-frame origin. The skeleton (privileged data for Q2/Q3) is matched in either case."""
 
     template: SkeletonGraph
     ssc: SSC
     extract_kw: dict = field(default_factory=dict)
+    centre: str = "ssc"
+
+    def __post_init__(self) -> None:
+        if self.centre not in CENTRES:
+            raise ValueError(f"centre: must be one of {', '.join(CENTRES)}, got {self.centre!r}")
 
     def skeleton(self, mesh: trimesh.Trimesh) -> SkeletonGraph:
         """``mesh``'s skeleton matched to the template, in the mesh's coordinates."""
         return match_skeleton(extract_skeleton(mesh, **self.extract_kw), self.template, mesh.bounds)
 
+    def origin_of(self, matched: SkeletonGraph | None, bounds, com) -> np.ndarray:
+        """The origin of an instance from its matched skeleton, its mesh's (2, 3) bounds and its
+        solid centre of mass (only the one the rule needs is read)."""
+        if self.centre == "box":
+            return np.asarray(bounds, float).reshape(2, 3).mean(0)
+        if self.centre == "com":
+            return np.asarray(com, float).reshape(3)
+        return self.ssc.point(matched)
+
     def origin(self, mesh: trimesh.Trimesh) -> np.ndarray:
-        """Drop-in for :func:`isa.meshes.object_origin`: the SSC of ``mesh`` in its coordinates."""
+        """Drop-in for :func:`isa.meshes.object_origin`: the origin of ``mesh`` in its coordinates."""
+        if self.centre == "box":
+            return self.origin_of(None, mesh.bounds, None)
+        if self.centre == "com":
+            res = self.extract_kw.get("resolution", 80)
+            return self.origin_of(None, None, centre_of_mass(mesh, res, self.extract_kw.get("seed", 0)))
         return self.ssc.point(self.skeleton(mesh))
 
     def save(self, path: str | Path) -> None:
-        d = {"template": self.template.to_dict(), "ssc": self.ssc.to_dict(), "extract_kw": self.extract_kw}
+        d = {"template": self.template.to_dict(), "ssc": self.ssc.to_dict(), "extract_kw": self.extract_kw,
+             "centre": self.centre}
         Path(path).write_text(json.dumps(d))
 
     @classmethod
     def load(cls, path: str | Path) -> "CategorySSC":
         d = json.loads(Path(path).read_text())
-        return cls(SkeletonGraph.from_dict(d["template"]), SSC.from_dict(d["ssc"]), d.get("extract_kw", {}))
+        return cls(SkeletonGraph.from_dict(d["template"]), SSC.from_dict(d["ssc"]), d.get("extract_kw", {}),
+                   d.get("centre", "ssc"))
 
 
 def fit_category_ssc(
