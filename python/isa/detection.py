@@ -11,7 +11,7 @@ A category model (an ISA forest trained on synthetic renders only) is run on a r
    vertical planes found by gravity-constrained RANSAC (two points fix a vertical plane) that are
    both tall and wide, so furniture faces are kept.
 2. **Votes**: :func:`isa.pipeline.predict` on the whole (cleaned) depth image gives ranked 6D
-   hypotheses ``(R, t)``; ``t`` is the SSC in the camera frame.
+   hypotheses ``(R, t)``; ``t`` is the object-frame origin (SSC or centre of mass, ``isa.categories.CENTRE``) in the camera frame.
 3. **Gravity** (:func:`hypothesis_box`): hypotheses whose object z axis is more than
    ``max_tilt_deg`` from up are rejected (furniture stands upright); the rest are snapped to a yaw
    about gravity; each becomes a gravity-aligned :class:`isa.boxes3d.Box3D` of the category's box
@@ -468,7 +468,7 @@ def upright_rotation(R: np.ndarray, R_gravity: np.ndarray) -> tuple[np.ndarray, 
 
 def hypothesis_box(hypothesis: Mapping[str, Any], box: CategoryBox, R_gravity: np.ndarray,
                    max_tilt_deg: float | None = None, category: str | None = None) -> Box3D | None:
-    """A 6D hypothesis (``R``, ``t`` = SSC in the camera frame, ``score``) as a gravity-aligned
+    """A 6D hypothesis (``R``, ``t`` = object origin in the camera frame, ``score``) as a gravity-aligned
     box in the upright frame, or None when its tilt exceeds ``max_tilt_deg``.
 
     The rotation is snapped to its yaw about gravity first (:func:`upright_rotation`), so the box

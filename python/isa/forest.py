@@ -193,7 +193,7 @@ class Forest:
         ``isa.camera.Intrinsics``, a 3x3 matrix or (fx, fy, cx, cy). Inference parameters not given
         come from the model's ``predict_defaults`` metadata (size-aware ones the pipeline stores),
         then from ``isa._core.default_predict_params()``. Each hypothesis: ``R`` (3, 3), ``t`` (3,)
-        metres (SSC in the camera frame), ``quaternion``, ``score``, ``support`` (see
+        metres (the object-frame origin, SSC or centre of mass, in the camera frame), ``quaternion``, ``score``, ``support`` (see
         ``isa._core.predict``)."""
         meta = self.metadata
         defaults = meta.get("predict_defaults", {}) if isinstance(meta, dict) else {}

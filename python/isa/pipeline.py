@@ -58,7 +58,7 @@ class PreparedCategory:
     category: str
     ssc: CategorySSC
     objects: list[ObjectSpec]
-    skeletons: dict[int, SkeletonGraph]  # obj_id -> matched skeleton, object frame (SSC origin)
+    skeletons: dict[int, SkeletonGraph]  # obj_id -> matched skeleton, object frame (the chosen origin)
     coms: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # SSC before re-centring
 
