@@ -16,7 +16,9 @@ Method (chosen by measurement, see issue #3): thinning of a solid voxelisation.
 5. **Plates**: thinning collapses a plate (panel back, seat, table top, sled side) to a short line
    or nothing; a TEASAR-like step (:func:`_cover`) adds the shortest in-solid path from the
    skeleton to the farthest uncovered voxel until every voxel is within ``cover`` of the skeleton,
-   so plates keep their extent (paths reach their far corners).
+   so plates keep their extent (paths reach their far corners), and every vertex of the solid's
+   convex hull within ``tip`` of it, so the corners of solid blocks (a platform bed's floor
+   corners) become ends of the skeleton.
    **Clean-up**: short spurs are pruned, nearby junctions merged, degree-2 nodes dissolved, and only
    the largest connected piece kept.
 6. **Resampling**: every branch is resampled to nodes at most ``spacing`` apart, so the graph's
@@ -127,12 +129,27 @@ def _solid_graph(solid: np.ndarray):
     return coords, ids, g
 
 
-def _cover(solid: np.ndarray, skel: np.ndarray, tau: float, max_branches: int = 24) -> np.ndarray:
-    """Extend ``skel`` with geodesic paths until every solid voxel is within ``tau`` voxels of it.
+def _hull_tips(coords: np.ndarray) -> np.ndarray:
+    """Indices into ``coords`` (voxel coordinates) of the vertices of their convex hull: the
+    shape's salient corners and tips (leg feet, a block's corners, a headboard's top corners)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return ConvexHull(coords.astype(float)).vertices
+    except (QhullError, ValueError):  # flat or tiny solids: no 3D hull
+        return np.zeros(0, np.int64)
+
+
+def _cover(solid: np.ndarray, skel: np.ndarray, tau: float, tau_tip: float | None = None, max_branches: int = 32) -> np.ndarray:
+    """Extend ``skel`` with geodesic paths until every solid voxel is within ``tau`` voxels of it,
+    and every convex-hull vertex of the solid within ``tau_tip`` voxels.
 
     Thinning collapses plates (panels, seats, backs, table tops) to short lines or nothing; this
     TEASAR-like step (Sato et al. 2000) adds, one at a time, the shortest in-solid path from the
-    skeleton to the farthest uncovered voxel (a plate's far corner), so plates keep their extent.
+    skeleton to the voxel farthest beyond its threshold (a plate's far corner), so plates keep
+    their extent. The tighter threshold at hull vertices makes the corners of solid blocks (a
+    platform bed's floor corners, a toilet's foot) end points of the skeleton: the coverage rule
+    alone stopped mid-way up such a corner's edge, 10-14% of the diameter from it.
     """
     from scipy.sparse.csgraph import dijkstra
 
@@ -142,12 +159,16 @@ def _cover(solid: np.ndarray, skel: np.ndarray, tau: float, max_branches: int = 
     if len(src) == 0:
         return skel
     skel = skel.copy()
+    thr = np.full(len(coords), float(tau))
+    if tau_tip is not None:
+        thr[_hull_tips(coords)] = min(float(tau_tip), float(tau))
     # The graph is built symmetric, so directed=True gives undirected distances without scipy
     # re-symmetrising (a CSR->CSC copy) on every call.
     dist, pred, _ = dijkstra(g, directed=True, indices=src, min_only=True, return_predecessors=True)
     for _ in range(max_branches):
-        far = int(np.argmax(np.where(np.isfinite(dist), dist, -1)))
-        if not np.isfinite(dist[far]) or dist[far] <= tau:
+        excess = np.where(np.isfinite(dist), dist - thr, -1.0)
+        far = int(np.argmax(excess))
+        if excess[far] <= 0:
             break
         path = [far]
         while pred[path[-1]] >= 0:
@@ -381,6 +402,7 @@ def extract_skeleton(
     prune: float = 0.06,
     merge: float = 0.05,
     cover: float = 0.15,
+    tip: float = 0.08,
     seed: int = 0,
 ) -> SkeletonGraph:
     """Curve skeleton of ``mesh`` as a :class:`SkeletonGraph` in the mesh's own coordinates.
@@ -390,7 +412,8 @@ def extract_skeleton(
     diagonal: the largest gap between consecutive nodes along a branch, the length below which a
     branch with a free end is pruned as a spur, the length below which a branch between two
     junctions is contracted, and the in-solid distance within which every voxel must be of the
-    skeleton (plates). ``seed`` fixes the surface sampling (the result is deterministic given it).
+    skeleton (plates), and ``tip`` the tighter such distance for the vertices of the solid's
+    convex hull (its corners and tips). ``seed`` fixes the surface sampling (the result is deterministic given it).
 
     ``meta`` holds ``kind`` (per node: "end", "junction", "inner"), ``pitch``, ``diameter`` (the
     bounding-box diagonal), ``bounds`` (the mesh's axis-aligned bounds, for matching) and ``com``
@@ -399,7 +422,7 @@ def extract_skeleton(
     mesh = _as_mesh(mesh)
     if int(resolution) < 16:
         raise ValueError(f"resolution: need at least 16 voxels along the largest extent, got {resolution}")
-    for name, val in (("spacing", spacing), ("prune", prune), ("merge", merge), ("cover", cover)):
+    for name, val in (("spacing", spacing), ("prune", prune), ("merge", merge), ("cover", cover), ("tip", tip)):
         if not (0 <= val < 1) or (name == "spacing" and val <= 0):
             raise ValueError(f"{name}: must be a fraction of the diameter in (0, 1), got {val}")
     diam = float(np.linalg.norm(mesh.extents))
@@ -412,7 +435,7 @@ def extract_skeleton(
         # entirely: start from its deepest voxel and let the coverage paths draw its extent.
         edt = ndi.distance_transform_edt(solid)
         skel[np.unravel_index(np.argmax(edt), edt.shape)] = True
-    skel = _cover(solid, skel, cover * diam / pitch)
+    skel = _cover(solid, skel, cover * diam / pitch, tip * diam / pitch)
     # Drop specks: components of the skeleton far smaller than the object.
     lab, nlab = ndi.label(skel, structure=np.ones((3, 3, 3)))
     if nlab > 1:
