@@ -77,8 +77,9 @@ def size_range(category: str) -> SizeRange:
     """The real-world :class:`SizeRange` of ``category``."""
     return SIZES[check_category(category)]
 
-#: Object-frame origin per category (:data:`isa.ssc.CENTRES`): the paper's SSC, or the upright
-#: bounding-box centre where the forest predicts that better on unseen instances. Chosen on the
+
+#: Object-frame origin per category (:data:`isa.ssc.CENTRES`): the paper's SSC, or the solid's
+#: centre of mass where the forest predicts that better on unseen instances. Chosen on the
 #: validation instances (``python -m isa.experiment --validation --centre ...``), never on test
 #: instances; docs/experiments.md has the numbers.
 CENTRE: dict[str, str] = {"bed": "com", "chair": "com", "table": "ssc", "toilet": "com"}

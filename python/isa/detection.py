@@ -11,7 +11,8 @@ A category model (an ISA forest trained on synthetic renders only) is run on a r
    vertical planes found by gravity-constrained RANSAC (two points fix a vertical plane) that are
    both tall and wide, so furniture faces are kept.
 2. **Votes**: :func:`isa.pipeline.predict` on the whole (cleaned) depth image gives ranked 6D
-   hypotheses ``(R, t)``; ``t`` is the object-frame origin (SSC or centre of mass, ``isa.categories.CENTRE``) in the camera frame.
+   hypotheses ``(R, t)``; ``t`` is the object-frame origin (SSC or centre of mass,
+   ``isa.categories.CENTRE``) in the camera frame.
 3. **Gravity** (:func:`hypothesis_box`): hypotheses whose object z axis is more than
    ``max_tilt_deg`` from up are rejected (furniture stands upright); the rest are snapped to a yaw
    about gravity; each becomes a gravity-aligned :class:`isa.boxes3d.Box3D` of the category's box

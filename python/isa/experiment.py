@@ -208,7 +208,7 @@ def _category_figures(cfg, category, out, report, train, train_frames, test_fram
     p = matched_grid(meshes, sks, report.figure_path(f"{category}-skeletons.png"), columns=7)
     report.image(p, f"{category}: skeletons matched to the category template (node colour = template index)")
     coms = [c - o for c, o in zip(train.coms[:n], train.origins[:n])]
-    sscs = [train.ssc.ssc.point(s) for s in sks]  # the origin itself unless the category uses its box centre
+    sscs = [train.ssc.ssc.point(s) for s in sks]  # at (0, 0, 0) when the category's origin is the SSC
     p = com_vs_ssc(meshes, coms, sscs, report.figure_path(f"{category}-com-vs-ssc.png"), matched=sks)
     origin = {"ssc": "the SSC", "com": "the centre of mass", "box": "the upright box centre"}[train.ssc.centre]
     report.image(p, f"{category}: centres of mass (top) vs the Semantically Selected Center (bottom); "

@@ -193,8 +193,8 @@ class Forest:
         ``isa.camera.Intrinsics``, a 3x3 matrix or (fx, fy, cx, cy). Inference parameters not given
         come from the model's ``predict_defaults`` metadata (size-aware ones the pipeline stores),
         then from ``isa._core.default_predict_params()``. Each hypothesis: ``R`` (3, 3), ``t`` (3,)
-        metres (the object-frame origin, SSC or centre of mass, in the camera frame), ``quaternion``, ``score``, ``support`` (see
-        ``isa._core.predict``)."""
+        metres (the object-frame origin, SSC or centre of mass, in the camera frame),
+        ``quaternion``, ``score``, ``support`` (see ``isa._core.predict``)."""
         meta = self.metadata
         defaults = meta.get("predict_defaults", {}) if isinstance(meta, dict) else {}
         return _core.predict(self._core, depth, intrinsics, **{**defaults, **params})

@@ -60,7 +60,7 @@ class PreparedCategory:
     objects: list[ObjectSpec]
     skeletons: dict[int, SkeletonGraph]  # obj_id -> matched skeleton, object frame (the chosen origin)
     coms: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # SSC before re-centring
+    origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the origin before re-centring
 
 
 def _matched_skeleton(obj: ObjectSpec, template: SkeletonGraph, use_ground_truth: bool) -> tuple[SkeletonGraph, np.ndarray]:
@@ -94,7 +94,8 @@ def prepare_category(
 ) -> PreparedCategory:
     """Skeletons matched to the category template, the SSC (fitted here on ``objects`` when
     ``ssc`` is None: the training instances; given: the test instances), and every instance moved
-    so that its origin (the SSC, or its box centre: ``centre``) is the object-frame origin.
+    so that its origin (the SSC, its centre of mass or its box centre: ``centre``) is the
+    object-frame origin.
 
     ``use_ground_truth``: procedural objects use their true skeletons instead of extraction.
     ``tie_tolerance``: nodes within this many votes of the most repetitive one share the SSC
