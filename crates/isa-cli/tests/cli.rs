@@ -70,6 +70,14 @@ fn write_trainset(path: &Path, metadata: &str) {
     trainset_io::write(&ts, path).unwrap();
 }
 
+/// `isa train TS -o OUT --quality Q1 --quiet` plus `extra` flags.
+fn train_q1(ts: &Path, out: &Path, extra: &[&str]) -> Output {
+    let (ts, out) = (ts.to_str().unwrap(), out.to_str().unwrap());
+    let mut args = vec!["train", ts, "-o", out, "--quality", "Q1", "--quiet"];
+    args.extend_from_slice(extra);
+    isa(&args)
+}
+
 /// Trained once for all tests: the model path.
 fn model() -> &'static PathBuf {
     static MODEL: OnceLock<PathBuf> = OnceLock::new();
@@ -77,25 +85,22 @@ fn model() -> &'static PathBuf {
         let ts = tmp("chair.isat");
         write_trainset(&ts, r#"{"category": "chair", "ssc": [0, 0, 0]}"#);
         let m = tmp("chair.isaf");
-        let o = isa(&[
-            "train",
-            ts.to_str().unwrap(),
-            "-o",
-            m.to_str().unwrap(),
-            "--n-trees",
-            "4",
-            "--max-depth",
-            "14",
-            "--quality",
-            "Q1",
-            "--n-candidates",
-            "60",
-            "--min-samples-split",
-            "10",
-            "--min-samples-leaf",
-            "3",
-            "--quiet",
-        ]);
+        let o = train_q1(
+            &ts,
+            &m,
+            &[
+                "--n-trees",
+                "4",
+                "--max-depth",
+                "14",
+                "--n-candidates",
+                "60",
+                "--min-samples-split",
+                "10",
+                "--min-samples-leaf",
+                "3",
+            ],
+        );
         assert!(o.status.success(), "train failed: {}", stderr(&o));
         m
     })
@@ -197,19 +202,7 @@ fn predict_reads_the_models_defaults_and_flags_win() {
         r#"{"predict_defaults": {"stride": 3, "max_hypotheses": 1, "from_the_future": 1}}"#,
     );
     let m = tmp("defaults.isaf");
-    let o = isa(&[
-        "train",
-        ts.to_str().unwrap(),
-        "-o",
-        m.to_str().unwrap(),
-        "--n-trees",
-        "2",
-        "--max-depth",
-        "10",
-        "--quality",
-        "Q1",
-        "--quiet",
-    ]);
+    let o = train_q1(&ts, &m, &["--n-trees", "2", "--max-depth", "10"]);
     assert!(o.status.success(), "train failed: {}", stderr(&o));
     let (depth, k, _, _) = test_view(5);
     let png = tmp("defaults-view5.png");
