@@ -26,7 +26,8 @@ def test_tiny_procedural_run_uses_the_chosen_origin(tmp_path, centre):
     res = json.loads((out / "results.json").read_text())
     cat = res["categories"]["toilet"]
     assert cat["centre"] == centre and res["config"]["centre"] == centre
-    assert 0.0 <= cat["isa"]["Q1"]["recall_at_0.1"] <= 100.0
+    isa_q1 = cat["isa"]["Q1"]
+    assert 0.0 <= isa_q1["recall_at_0.1"] <= isa_q1["recall_at_0.1_symmetric"] <= 100.0  # ADD-S never stricter
     assert Forest.load(out / "models" / "toilet-Q1.isa").metadata["centre"] == centre
     # Independent check on the written ground truth: the BOP models (mm) are centred on the origin.
     for ply in sorted((out / "data" / "toilet" / "models").glob("*.ply")):

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from isa.pose_metrics import average_distance, is_correct, model_diameter, recall, recall_curve
+from isa.pose_metrics import (
+    average_distance,
+    is_correct,
+    model_diameter,
+    recall,
+    recall_curve,
+    symmetric_average_distance,
+)
 
 
 def _rot_z(theta: float) -> np.ndarray:
@@ -90,3 +97,44 @@ def test_errors_name_the_argument(cloud):
         is_correct(0.1, 1.0, -1)
     with pytest.raises(ValueError, match="diameter"):
         is_correct(0.1, 0.0)
+
+
+# -- ADD-S (symmetries forgiven) -------------------------------------------------------------
+
+
+def _box_grid(a: float, b: float, c: float, n: int = 9) -> np.ndarray:
+    """A regular grid on a box of half sizes a, b, c: invariant under 180 degrees about z."""
+    g = [np.linspace(-h, h, n) for h in (a, b, c)]
+    return np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
+
+
+def test_symmetric_distance_forgives_the_symmetry_the_plain_one_does_not():
+    X = _box_grid(0.6, 0.3, 0.2)
+    R, t = _rot_z(0.4), np.array([0.2, 0.0, 2.5])
+    flipped = R @ _rot_z(np.pi)
+    assert symmetric_average_distance(X, R, t, flipped, t) == pytest.approx(0.0, abs=1e-9)
+    # Eq. 14 sees every point moved through the origin: 2 * mean horizontal radius.
+    assert average_distance(X, R, t, flipped, t) == pytest.approx(2 * np.linalg.norm(X[:, :2], axis=1).mean(), rel=1e-9)
+
+
+def test_symmetric_distance_of_a_small_shift_on_a_dense_line_is_the_perpendicular_part():
+    # Points densely along x on [-1, 1]: a shift of s along x is seen only by the fraction s / 2 of
+    # them left uncovered at one end (mean distance s / 2 there): s^2 / 4 in all; one along y
+    # costs its length.
+    X = np.stack([np.linspace(-1, 1, 20001), np.zeros(20001), np.zeros(20001)], 1)
+    I, t = np.eye(3), np.zeros(3)
+    assert symmetric_average_distance(X, I, t, I, t + [0.05, 0.0, 0.0]) == pytest.approx(0.05**2 / 4, rel=1e-2)
+    assert symmetric_average_distance(X, I, t, I, t + [0.0, 0.05, 0.0]) == pytest.approx(0.05, rel=1e-6)
+
+
+def test_symmetric_distance_never_exceeds_the_plain_one(cloud):
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        R1, R2 = _rot_z(rng.uniform(-3, 3)), _rot_z(rng.uniform(-3, 3))
+        t1, t2 = rng.normal(size=3), rng.normal(size=3)
+        assert symmetric_average_distance(cloud, R1, t1, R2, t2) <= average_distance(cloud, R1, t1, R2, t2) + 1e-12
+
+
+def test_symmetric_distance_refuses_batches(cloud):
+    with pytest.raises(ValueError, match="single poses"):
+        symmetric_average_distance(cloud, np.tile(np.eye(3), (2, 1, 1)), np.zeros((2, 3)), np.eye(3), np.zeros(3))
