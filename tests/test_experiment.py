@@ -46,23 +46,3 @@ def test_unknown_centre_is_refused_by_the_parser(capsys):
     with pytest.raises(SystemExit):
         experiment.parser().parse_args(["--procedural", "--out", "x", "--centre", "middle"])
     assert "--centre" in capsys.readouterr().err
-
-
-def test_augmented_copies_are_trained_on_and_rendered_as_stretched_models(tmp_path):
-    out = tmp_path / "aug"
-    experiment.main(["--procedural", "--out", str(out), "--categories", "chair", "--train-instances", "2",
-                     "--test-instances", "1", "--views", "3", "--test-images", "1", "--qualities", "Q1",
-                     "--trees", "1", "--depth", "4", "--candidates", "4", "--stride", "8", "--no-linemod",
-                     "--augment", "1", "--augment-stretch", "0.2"])
-    cat = json.loads((out / "results.json").read_text())["categories"]["chair"]
-    assert len(cat["train_instances"]) == 4 and sum("#stretch" in s for s in cat["train_instances"]) == 2
-    assert cat["train_images"] == 4 * 3
-    # The written models of the copies are the originals stretched (per-axis extents ratios in range).
-    models = out / "data" / "chair" / "models"
-    ext = {int(p.stem.split("_")[-1]): trimesh.load(p, process=False).extents for p in models.glob("*.ply")}
-    originals = sorted(k for k in ext if k < 1000)
-    copies = sorted(k for k in ext if k >= 100_000)
-    assert len(originals) == 2 and len(copies) == 2
-    for o, c in zip(originals, copies):
-        ratio = ext[c] / ext[o]
-        assert np.all((ratio > 1 / 1.2 - 1e-6) & (ratio < 1.2 + 1e-6)) and np.ptp(ratio) > 1e-3
