@@ -61,8 +61,6 @@ class ExperimentConfig:
     ssc_tie_tolerance: int = 0  # nodes within this many votes of the top one share the SSC
     centre: str | None = None  # object-frame origin, isa.ssc.CENTRES; None: isa.categories.CENTRE
     max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
-    augment: int = 0  # stretched copies of each training instance (pipeline.augment_instances); 0: none
-    augment_stretch: float = 0.15
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
 
@@ -101,8 +99,6 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     t0 = time.perf_counter()
     train = pipeline.prepare_category(category, _objects(cfg, category, "train"), use_ground_truth=cfg.ground_truth_skeletons,
                                       tie_tolerance=cfg.ssc_tie_tolerance, centre=cfg.centre)
-    if cfg.augment:
-        train = pipeline.augment_instances(train, cfg.augment, cfg.augment_stretch, seed=cfg.seed)
     test = pipeline.prepare_category(category, _objects(cfg, category, "test"), ssc=train.ssc,
                                      use_ground_truth=cfg.ground_truth_skeletons)
     tm["skeletons_ssc"] = time.perf_counter() - t0
@@ -173,8 +169,7 @@ def _linemod(cfg, category, train, train_frames, test_frames, pts) -> dict:
     by_obj: dict[int, list] = {}
     for f in train_frames:
         by_obj.setdefault(f.obj_id, []).append(f)
-    # The paper's baseline: one detector per CAD model, never per augmented copy.
-    objs = [o for o in train.objects if o.obj_id < pipeline.AUGMENT_FIRST_ID][: cfg.linemod_instances or None]
+    objs = train.objects[: cfg.linemod_instances or None]
 
     def builders():
         for o in objs:
@@ -344,10 +339,6 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--centre", choices=CENTRES, default=None,
                    help="object-frame origin: the SSC, the centre of mass or the upright box centre (default: per category, "
                         "isa.categories.CENTRE)")
-    p.add_argument("--augment", type=int, default=0, metavar="COPIES",
-                   help="also train on COPIES stretched variants of each training instance (not the paper's protocol)")
-    p.add_argument("--augment-stretch", type=float, default=0.15,
-                   help="largest per-axis stretch of an augmented copy, as a fraction (0: identical copies, new views only)")
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -360,8 +351,7 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         max_offset=a.max_offset,
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
         ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation,
-        ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, augment=a.augment, augment_stretch=a.augment_stretch,
-        seed=a.seed)
+        ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -124,42 +124,6 @@ def prepare_category(
     return PreparedCategory(category, ssc, out_objs, out_sk, coms, np.array(origins))
 
 
-#: Augmented copies get obj_ids from here on (training ids start at 1, test ids at 1001).
-AUGMENT_FIRST_ID = 100_001
-
-
-def augment_instances(prepared: PreparedCategory, copies: int, stretch: float = 0.15, seed: int = 0) -> PreparedCategory:
-    """``prepared`` plus ``copies`` stretched variants of each instance: new shapes of the category
-    from the few CAD models a protocol allows.
-
-    A variant scales the object frame by diag(sx, sy, sz), each factor log-uniform in
-    [1 / (1 + stretch), 1 + stretch], about the origin (the upright axis stays z). Nothing needs
-    re-extracting: the matched skeleton's nodes move with the mesh, and the origin stays at 0 because
-    the centre of mass, the box centre and an SSC (a point among the nodes) all move with any such
-    map. ``stretch`` 0 gives identical copies, which differ from the originals only in their
-    (obj_id-seeded) views: the control for how much the new shapes bring.
-    """
-    if copies < 0:
-        raise ValueError(f"copies: must be >= 0, got {copies}")
-    if not 0 <= stretch < 1:
-        raise ValueError(f"stretch: must be in [0, 1), got {stretch}")
-    rng = np.random.default_rng([seed, 7])
-    objs, sks = list(prepared.objects), dict(prepared.skeletons)
-    coms, origins = list(prepared.coms), list(prepared.origins)
-    for k in range(copies):
-        for i, o in enumerate(prepared.objects):
-            S = np.diag(np.exp(rng.uniform(-np.log1p(stretch), np.log1p(stretch), 3)))
-            mesh = o.mesh.copy()
-            mesh.apply_transform(np.block([[S, np.zeros((3, 1))], [np.zeros((1, 3)), np.ones((1, 1))]]))
-            gt = o.skeleton.transformed(S, np.zeros(3)) if o.skeleton is not None else None
-            oid = AUGMENT_FIRST_ID + k * len(prepared.objects) + i
-            objs.append(replace(o, obj_id=oid, mesh=mesh, skeleton=gt, source=f"{o.source}#stretch{k}"))
-            sks[oid] = prepared.skeletons[o.obj_id].transformed(S, np.zeros(3))
-            coms.append(S @ (prepared.coms[i] - prepared.origins[i]))  # in the (centred) object frame
-            origins.append(np.zeros(3))
-    return replace(prepared, objects=objs, skeletons=sks, coms=np.array(coms), origins=np.array(origins))
-
-
 def save_skeletons(path: Path, prepared: PreparedCategory) -> None:
     data = {"ssc": json.loads(json.dumps(prepared.ssc.ssc.to_dict())), "template": prepared.ssc.template.to_dict(),
             "skeletons": {str(k): v.to_dict() for k, v in prepared.skeletons.items()}}
