@@ -212,7 +212,8 @@ class Evaluation:
         return float(np.mean(om <= z * self.diameters)) if len(om) else 0.0
 
     def to_dict(self) -> dict:
-        return {"omega": self.omegas.tolist(), "diameter": self.diameters.tolist(), "score": self.scores.tolist()}
+        return {"omega": self.omegas.tolist(), "omega_symmetric": self.omegas_symmetric.tolist(),
+                "diameter": self.diameters.tolist(), "score": self.scores.tolist()}
 
 
 def predict(forest: Forest, depth: np.ndarray, intrinsics: Intrinsics, **params) -> list[dict]:

@@ -5,14 +5,15 @@
 
 ``z`` sets how coarse a correct hypothesis may be; the paper's headline is z = 0.1, and the recall
 over a range of z is reported too. For objects with symmetries (a rectangular table turned by
-180 degrees looks the same) :func:`symmetric_average_distance` (ADD-S) is reported beside it. Points are in the object frame (origin = the category's SSC),
-poses map them to the camera frame as everywhere in isa: X_cam = R X + t.
+180 degrees looks the same) :func:`symmetric_average_distance` (ADD-S) is reported beside it.
+Points are in the object frame (origin = the category's SSC), poses map them to the camera frame
+as everywhere in isa: X_cam = R X + t.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, cKDTree
 
 
 def _points(points) -> np.ndarray:
@@ -58,8 +59,6 @@ def symmetric_average_distance(points, R_gt, t_gt, R_est, t_est) -> float:
     Poses that a symmetry of the model makes indistinguishable score (near) zero, where Eq. 14
     scores them as far apart; never more than :func:`average_distance`. Single poses only.
     """
-    from scipy.spatial import cKDTree
-
     X = _points(points)
     Rg, tg = _pose(R_gt, t_gt, "R_gt/t_gt")
     Re, te = _pose(R_est, t_est, "R_est/t_est")
