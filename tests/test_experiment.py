@@ -1,5 +1,5 @@
 """The experiment driver end to end on a tiny procedural run: the chosen object-frame origin
-reaches the rendered ground truth, the model file and results.json."""
+reaches the rendered ground truth, the model file and results.json; --mirror adds flipped views."""
 
 from __future__ import annotations
 
@@ -16,15 +16,18 @@ from isa import experiment  # noqa: E402
 from isa.forest import Forest  # noqa: E402
 
 
-@pytest.mark.parametrize("centre", ["box", "com"])
-def test_tiny_procedural_run_uses_the_chosen_origin(tmp_path, centre):
+@pytest.mark.parametrize("centre, mirror", [("box", False), ("com", True)])
+def test_tiny_procedural_run_uses_the_chosen_origin(tmp_path, centre, mirror):
     out = tmp_path / "run"
     experiment.main(["--procedural", "--out", str(out), "--categories", "toilet", "--train-instances", "2",
                      "--test-instances", "1", "--views", "6", "--test-images", "2", "--qualities", "Q1",
                      "--trees", "2", "--depth", "6", "--candidates", "8", "--stride", "8", "--no-linemod",
-                     "--centre", centre])
+                     "--centre", centre] + (["--mirror"] if mirror else []))
     res = json.loads((out / "results.json").read_text())
     cat = res["categories"]["toilet"]
+    # Procedural toilets are symmetric left to right: --mirror doubles the 2 x 6 training views.
+    assert cat["train_images"] == (24 if mirror else 12)
+    assert cat.get("mirrored_instances") == (2 if mirror else None)
     assert cat["centre"] == centre and res["config"]["centre"] == centre
     isa_q1 = cat["isa"]["Q1"]
     assert 0.0 <= isa_q1["recall_at_0.1"] <= isa_q1["recall_at_0.1_symmetric"] <= 100.0  # ADD-S never stricter

@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 from isa import __version__, pipeline  # noqa: E402
 from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, check_category  # noqa: E402
 from isa.exceptions import DataError  # noqa: E402
+from isa.mirror import find_mirror, with_mirrored  # noqa: E402
 from isa.modelnet import paper_instances  # noqa: E402
 from isa.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset  # noqa: E402
 from isa.forest import QUALITIES, ForestParams  # noqa: E402
@@ -61,6 +62,7 @@ class ExperimentConfig:
     ssc_tie_tolerance: int = 0  # nodes within this many votes of the top one share the SSC
     centre: str | None = None  # object-frame origin, isa.ssc.CENTRES; None: isa.categories.CENTRE
     max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
+    mirror: bool = False  # add the mirrored copy of every training view of a mirror-symmetric instance (isa.mirror)
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
 
@@ -114,11 +116,16 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
                    views=lambda o: default_test_views(o, per_obj, seed=cfg.seed))
     tm["render"] = time.perf_counter() - t0
     train_frames = pipeline.load_frames(data, "train")
+    forest_frames = train_frames  # Linemod and the figures keep the rendered views only
+    if cfg.mirror:
+        mirrors = {o.obj_id: find_mirror(o.mesh) for o in train.objects}
+        res["mirrored_instances"] = sum(m is not None for m in mirrors.values())
+        forest_frames = with_mirrored(train_frames, mirrors)
     test_frames = _test_frames(data, cfg.test_images)
     t0 = time.perf_counter()
-    ts = pipeline.training_set(train_frames, train.skeletons, stride=cfg.stride)
+    ts = pipeline.training_set(forest_frames, train.skeletons, stride=cfg.stride)
     tm["annotate"] = time.perf_counter() - t0
-    res.update(train_images=len(train_frames), train_parts=len(ts), test_images=len(test_frames))
+    res.update(train_images=len(forest_frames), train_parts=len(ts), test_images=len(test_frames))
 
     models = {o.obj_id: o.mesh for o in test.objects}
     pts = {k: model_points(m) for k, m in models.items()}
@@ -339,6 +346,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--centre", choices=CENTRES, default=None,
                    help="object-frame origin: the SSC, the centre of mass or the upright box centre (default: per category, "
                         "isa.categories.CENTRE)")
+    p.add_argument("--mirror", action="store_true",
+                   help="also train on every view flipped left to right, for instances that are mirror-symmetric "
+                        "(isa.mirror): twice the views, no extra rendering")
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -351,7 +361,7 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         max_offset=a.max_offset,
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
         ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation,
-        ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, seed=a.seed)
+        ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, mirror=a.mirror, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:
