@@ -21,7 +21,10 @@ Method (chosen by measurement, see issue #3): thinning of a solid voxelisation.
    convex hull within ``tip`` of it, so the corners of solid blocks (a platform bed's floor
    corners) become ends of the skeleton.
    **Clean-up**: short spurs are pruned, nearby junctions merged, degree-2 nodes dissolved, and only
-   the largest connected piece kept.
+   the largest connected piece kept. Two mirror-image end branches that reach the two sides of a
+   thick part (a block's two corners a thickness apart) are folded into one on the mirror plane
+   (:func:`_fold_across_thickness`), and every end branch is continued straight on to the surface
+   (:func:`_extend_ends`), where the true skeleton ends (thinned branches stop inside).
 6. **Resampling**: every branch is resampled to nodes at most ``spacing`` apart, so the graph's
    nodes lie on the skeleton and links are short straight pieces of it.
 
@@ -142,7 +145,7 @@ def _hull_tips(coords: np.ndarray) -> np.ndarray:
 
 
 def _cover(solid: np.ndarray, skel: np.ndarray, tau: float, tau_tip: float | None = None, max_branches: int = 32,
-           centring: float = 2.0) -> np.ndarray:
+           centring: float = 2.0, edt: np.ndarray | None = None) -> np.ndarray:
     """Extend ``skel`` with in-solid paths until every solid voxel is within ``tau`` voxels of it,
     and every convex-hull vertex of the solid within ``tau_tip`` voxels.
 
@@ -172,7 +175,7 @@ def _cover(solid: np.ndarray, skel: np.ndarray, tau: float, tau_tip: float | Non
     thr = np.full(len(coords), float(tau))
     if tau_tip is not None:
         thr[_hull_tips(coords)] = min(float(tau_tip), float(tau))
-    dbf = ndi.distance_transform_edt(solid)[tuple(coords.T)]
+    dbf = (ndi.distance_transform_edt(solid) if edt is None else edt)[tuple(coords.T)]
     step = 1.0 + centring * (1.0 - dbf / dbf.max()) ** 2
     gp = g.copy()  # same edges, penalised lengths (mean step cost of the edge's two voxels)
     gp.data *= 0.5 * (step[np.repeat(np.arange(len(coords)), np.diff(gp.indptr))] + step[gp.indices])
@@ -434,6 +437,8 @@ def extract_skeleton(
     junctions is contracted, and the in-solid distance within which every voxel must be of the
     skeleton (plates), and ``tip`` the tighter such distance for the vertices of the solid's
     convex hull (its corners and tips). ``seed`` fixes the surface sampling (the result is deterministic given it).
+    The mesh is expected in the object frame (x = 0 its left-right mirror plane, see
+    :func:`_fold_across_thickness`); in other coordinates mirror-image ends are just not folded.
 
     ``meta`` holds ``kind`` (per node: "end", "junction", "inner"), ``pitch``, ``diameter`` (the
     bounding-box diagonal), ``bounds`` (the mesh's axis-aligned bounds, for matching) and ``com``
@@ -450,12 +455,12 @@ def extract_skeleton(
     solid, origin = voxelize_solid(mesh, pitch, seed)
     com = origin + np.argwhere(solid).mean(0) * pitch  # the solid's centre of mass, for the SSC
     skel = skeletonize(solid).astype(bool)
+    edt = ndi.distance_transform_edt(solid)  # voxels to the background (coverage paths, thickness)
     if not skel.any():
         # scikit-image's thinning can erase a simply connected blob (a box, a ball, a 2-voxel bar)
         # entirely: start from its deepest voxel and let the coverage paths draw its extent.
-        edt = ndi.distance_transform_edt(solid)
         skel[np.unravel_index(np.argmax(edt), edt.shape)] = True
-    skel = _cover(solid, skel, cover * diam / pitch, tip * diam / pitch)
+    skel = _cover(solid, skel, cover * diam / pitch, tip * diam / pitch, edt=edt)
     # Drop specks: components of the skeleton far smaller than the object.
     lab, nlab = ndi.label(skel, structure=np.ones((3, 3, 3)))
     if nlab > 1:
@@ -512,6 +517,9 @@ def extract_skeleton(
     g.dissolve_degree2()
     # Keep the largest connected piece only: a skeleton is one object.
     _keep_largest_component(g)
+    _fold_across_thickness(g, solid, edt * pitch, origin, pitch)
+    _extend_ends(g, solid, origin, pitch, 0.04 * diam)
+    g.dissolve_degree2()
 
     # Resample branches into nodes/links.
     key_nodes = sorted(g.pos)
@@ -546,6 +554,104 @@ def extract_skeleton(
             "method": "voxel-thinning",
         }
     )
+
+
+def _voxel_index(p: np.ndarray, origin: np.ndarray, pitch: float, shape) -> tuple:
+    """Index tuple of the voxels containing the points ``p`` (N, 3), clipped to the grid."""
+    i = np.round((np.asarray(p, float).reshape(-1, 3) - origin) / pitch).astype(np.int64)
+    return tuple(np.clip(i, 0, np.array(shape) - 1).T)
+
+
+def _fold_across_thickness(g: _Graph, solid: np.ndarray, edt: np.ndarray, origin: np.ndarray, pitch: float,
+                           ratio: float = 1.1, mirror: float = 3.0) -> None:
+    """Merge mirror-image end branches that reach the two sides of a thick part into one branch on
+    the mirror plane.
+
+    Thinning and the coverage paths run to the 3D corners of a chunky block, so one end of the
+    block's mid-sheet comes out as two ends, one at each corner (a toilet's rear body ended at both
+    bottom-back corners, 12-16% of the diameter from the middle of that edge, where its medial
+    skeleton ends). Two end branches from one junction are folded into their average when their
+    ends are mirror images in the object frame's left-right plane x = 0 (within ``mirror`` voxels:
+    the object frame's origin is the bounding-box centre, and furniture is left-right symmetric),
+    the straight line between them runs inside the solid (two legs, with air between their feet,
+    never fold), and they are at most ``ratio`` times the thickness of the part they are in apart
+    (twice the largest distance to the background, ``edt`` in metres, along the branches' last
+    stretch as long as that separation), so wider pairs, such as a tank's two top corners, stay.
+    Without the mirror condition, the closest pair could be the wrong one: a near-cubic block's
+    front and back corners, or two feet along a footboard standing on a thick bed.
+    """
+    shape = solid.shape
+    while True:
+        best = None
+        for j in list(g.pos):
+            inc = g.incident(j)
+            if len(inc) < 3:
+                continue
+            ends = []  # (branch, end node, polyline from j)
+            for k in inc:
+                a, b, p = g.br[k]
+                o = b if a == j else a
+                if a != b and g.degree(o) == 1:
+                    ends.append((k, o, p if a == j else p[::-1]))
+            for x in range(len(ends)):
+                for y in range(x + 1, len(ends)):
+                    (k1, o1, p1), (k2, o2, p2) = ends[x], ends[y]
+                    e1, e2 = g.pos[o1], g.pos[o2]
+                    if np.abs(e1 * [-1, 1, 1] - e2).max() > mirror * pitch:
+                        continue
+                    sep = float(np.linalg.norm(e1 - e2))
+                    near = [q[np.linalg.norm(q - q[-1], axis=1) <= sep] for q in (p1, p2)]
+                    r = sep / (2 * max(max(edt[_voxel_index(q, origin, pitch, shape)].max() for q in near), 1e-12))
+                    if r > ratio or (best is not None and r >= best[0]):
+                        continue
+                    line = e1 + np.linspace(0, 1, max(2, int(np.ceil(2 * sep / pitch))))[:, None] * (e2 - e1)
+                    if solid[_voxel_index(line, origin, pitch, shape)].mean() >= 0.95:
+                        best = (r, j, k1, o1, p1, k2, o2, p2)
+        if best is None:
+            return
+        _, j, k1, o1, p1, k2, o2, p2 = best
+        m = max(len(p1), len(p2))
+        mid = 0.5 * (_resample_n(p1, m) + _resample_n(p2, m))
+        del g.br[k1], g.br[k2], g.pos[o1], g.pos[o2]
+        n = max(g.pos) + 1
+        g.pos[n] = mid[-1]
+        g.br[g.next_id] = (j, n, mid)
+        g.next_id += 1
+
+
+def _resample_n(poly: np.ndarray, n: int) -> np.ndarray:
+    """Polyline -> ``n`` points at equal arc length, both ends kept."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poly, axis=0), axis=1))])
+    t = np.linspace(0, s[-1], n)
+    return np.stack([np.interp(t, s, poly[:, d]) for d in range(3)], 1)
+
+
+def _extend_ends(g: _Graph, solid: np.ndarray, origin: np.ndarray, pitch: float, fit: float) -> None:
+    """Continue every end branch straight on (its direction over the last ``fit`` metres) to where
+    it leaves the solid: a thinned branch stops about a half-thickness inside the part (above a
+    foot on the floor), while the true skeleton runs on to the surface."""
+    for k, (a, b, p) in list(g.br.items()):
+        for end in (a, b):
+            if a == b or g.degree(end) != 1:
+                continue
+            a, b, p = g.br[k]
+            q = p if b == end else p[::-1]
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))])
+            if s[-1] < 2 * pitch:
+                continue
+            back = np.array([np.interp(s[-1] - min(fit, s[-1]), s, q[:, d]) for d in range(3)])
+            u = (q[-1] - back) / max(float(np.linalg.norm(q[-1] - back)), 1e-12)
+            ext = []
+            while True:
+                x = q[-1] + (len(ext) + 1) * 0.5 * pitch * u
+                i = np.round((x - origin) / pitch).astype(np.int64)
+                if np.any(i < 0) or np.any(i >= solid.shape) or not solid[tuple(i)]:
+                    break
+                ext.append(x)
+            if len(ext) >= 2:  # at least a voxel on
+                q = np.concatenate([q, ext])
+                g.pos[end] = q[-1]
+                g.br[k] = (a, b, q if b == end else q[::-1])
 
 
 def _keep_largest_component(g: _Graph) -> None:
