@@ -49,3 +49,18 @@ def test_unknown_centre_is_refused_by_the_parser(capsys):
     with pytest.raises(SystemExit):
         experiment.parser().parse_args(["--procedural", "--out", "x", "--centre", "middle"])
     assert "--centre" in capsys.readouterr().err
+
+
+def test_canonical_labels_and_the_symmetry_ceiling_reach_results_json(tmp_path):
+    out = tmp_path / "run"
+    experiment.main(["--procedural", "--out", str(out), "--categories", "table", "--train-instances", "2",
+                     "--test-instances", "1", "--views", "6", "--test-images", "2", "--qualities", "Q1",
+                     "--trees", "2", "--depth", "6", "--candidates", "8", "--stride", "8", "--no-linemod",
+                     "--canonical"])
+    cat = json.loads((out / "results.json").read_text())["categories"]["table"]
+    # Procedural tables are rectangles or squares on four legs: every one has a turn symmetry (C2 or C4),
+    # so a symmetry-blind estimator is right at most half the time.
+    assert cat["canonical_instances"] == 2
+    assert set(cat["symmetry"]["orders"].values()) <= {2, 4}
+    assert 0.0 < cat["symmetry"]["ceiling_at_0.1"] <= 50.0
+    assert "Ceiling: any estimator blind to symmetry" in (out / "report.md").read_text()

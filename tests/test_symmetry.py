@@ -12,7 +12,8 @@ from isa.camera import KINECT_V1
 from isa.exceptions import InvalidParameterError
 from isa.pose_metrics import model_diameter, model_points
 from isa.render import render_depth
-from isa.symmetry import canonical_frames, canonical_pose, find_yaw_symmetry, recall_ceiling, yaw_matrix
+from isa.symmetry import (YawSymmetry, canonical_frames, canonical_pose, common_subgroup, find_yaw_symmetry,
+                          recall_ceiling, yaw_matrix)
 from isa.views import look_at
 
 OFFSET = np.array([0.21, -0.13, 0.4])  # the symmetry axis is not the object frame's z axis
@@ -117,3 +118,22 @@ def test_canonical_frames_relabel_only_symmetric_instances():
     np.testing.assert_allclose(out[0].R, R @ yaw_matrix(np.pi), atol=1e-9)
     assert out[1] is frames[1]
     assert out[0].depth is frames[0].depth
+
+
+def test_common_subgroup_is_the_turn_group_every_symmetric_instance_shares():
+    def of(*orders):
+        got = common_subgroup({i: YawSymmetry(np.zeros(3), o, 0.0) for i, o in enumerate(orders)})
+        return [got[i].order for i in range(len(orders))]
+
+    # A square (C4), rectangles (C2) and a round table (continuous) share the half turn; no symmetry stays none.
+    assert of(4, 2, 0, 1) == [2, 2, 2, 1]
+    assert of(4, 0) == [4, 4]
+    assert of(0, 0) == [0, 0]
+    assert of(3, 2) == [1, 1]  # a third and a half turn share only the identity
+    # Cut down to C2, a square table's canonical label still renders its own image.
+    square = _table((1.0, 1.0))
+    sym = common_subgroup({0: find_yaw_symmetry(square), 1: find_yaw_symmetry(_table())})[0]
+    assert sym.order == 2
+    R, t = look_at(OFFSET + [-2.2, 1.4, 1.5], target=OFFSET)
+    Rc, tc = canonical_pose(R, t, sym)
+    np.testing.assert_allclose(Rc, R @ yaw_matrix(np.pi), atol=1e-9)

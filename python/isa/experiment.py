@@ -28,7 +28,7 @@ from isa import __version__, pipeline  # noqa: E402
 from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, check_category  # noqa: E402
 from isa.exceptions import DataError  # noqa: E402
 from isa.mirror import find_mirror, with_mirrored  # noqa: E402
-from isa.symmetry import canonical_frames, find_yaw_symmetry, recall_ceiling  # noqa: E402
+from isa.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling  # noqa: E402
 from isa.modelnet import paper_instances  # noqa: E402
 from isa.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset  # noqa: E402
 from isa.forest import QUALITIES, ForestParams  # noqa: E402
@@ -124,7 +124,7 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
         res["mirrored_instances"] = sum(m is not None for m in mirrors.values())
         forest_frames = with_mirrored(train_frames, mirrors)
     if cfg.canonical:
-        syms = {o.obj_id: find_yaw_symmetry(o.mesh) for o in train.objects}
+        syms = common_subgroup({o.obj_id: find_yaw_symmetry(o.mesh) for o in train.objects})
         res["canonical_instances"] = sum(s.is_symmetric for s in syms.values())
         forest_frames = canonical_frames(forest_frames, syms)
     test_frames = _test_frames(data, cfg.test_images)

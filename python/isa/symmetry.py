@@ -142,6 +142,29 @@ def canonical_pose(R: np.ndarray, t: np.ndarray, sym: YawSymmetry) -> tuple[np.n
     return R @ g, t + R @ (sym.centre - g @ sym.centre)
 
 
+def common_subgroup(symmetries: dict[int, YawSymmetry]) -> dict[int, YawSymmetry]:
+    """Each instance's symmetry cut down to the turn group that all symmetric instances share.
+
+    Labels must agree across instances, not only within one: a square table (C4) labelled by its
+    own group puts the camera within 45 degrees of its front, where a rectangular one (C2) allows
+    90, so the two would vote 90 degrees apart for the same-looking view. The common group is the
+    greatest common divisor of the discrete orders (every order, for continuous symmetries);
+    instances without a symmetry stay as they are.
+    """
+    orders = [s.order for s in symmetries.values() if s.order > 1]
+    if orders:
+        common = int(np.gcd.reduce(orders))
+    else:  # only continuous symmetries (or none): they share every turn
+        common = 0
+    out = {}
+    for k, s in symmetries.items():
+        if not s.is_symmetric or s.order == common:
+            out[k] = s
+        else:
+            out[k] = replace(s, order=common) if common != 1 else YawSymmetry(s.centre, 1, s.error)
+    return out
+
+
 def canonical_frames(frames: Sequence[bop.BopFrame], symmetries: dict[int, YawSymmetry | None]) -> list[bop.BopFrame]:
     """``frames`` with the poses of symmetric instances replaced by their canonical ones (the
     depth images stay; the projected skeleton follows the pose, so its nodes swap with the turn)."""
