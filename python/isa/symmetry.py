@@ -143,26 +143,25 @@ def canonical_pose(R: np.ndarray, t: np.ndarray, sym: YawSymmetry) -> tuple[np.n
 
 
 def common_subgroup(symmetries: dict[int, YawSymmetry]) -> dict[int, YawSymmetry]:
-    """Each instance's symmetry cut down to the turn group that all symmetric instances share.
+    """Each instance's symmetry cut down to the turn group that the category's symmetric instances share.
 
     Labels must agree across instances, not only within one: a square table (C4) labelled by its
     own group puts the camera within 45 degrees of its front, where a rectangular one (C2) allows
-    90, so the two would vote 90 degrees apart for the same-looking view. The common group is the
-    greatest common divisor of the discrete orders (every order, for continuous symmetries);
-    instances without a symmetry stay as they are.
+    90, so the two would vote 90 degrees apart for the same-looking view. The shared group is the
+    C_n (n in :data:`ORDERS`) that the most instances' groups contain (continuous ones contain
+    every C_n; ties go to the larger n); instances whose group does not contain it (a three-legged
+    table among rectangles) are left unlabelled, as are those without a symmetry.
     """
-    orders = [s.order for s in symmetries.values() if s.order > 1]
-    if orders:
-        common = int(np.gcd.reduce(orders))
-    else:  # only continuous symmetries (or none): they share every turn
-        common = 0
-    out = {}
-    for k, s in symmetries.items():
-        if not s.is_symmetric or s.order == common:
-            out[k] = s
-        else:
-            out[k] = replace(s, order=common) if common != 1 else YawSymmetry(s.centre, 1, s.error)
-    return out
+    def contains(s: YawSymmetry, n: int) -> bool:
+        return s.order == 0 or (s.order > 1 and s.order % n == 0)
+
+    counts = {n: sum(contains(s, n) for s in symmetries.values()) for n in ORDERS}
+    best = max(counts.values(), default=0)
+    if best == 0 or all(s.order == 0 for s in symmetries.values() if s.is_symmetric):
+        return dict(symmetries)  # nothing symmetric, or only round ones (which share every turn)
+    common = max(n for n, c in counts.items() if c == best)
+    return {k: replace(s, order=common) if contains(s, common) else YawSymmetry(s.centre, 1, s.error)
+            for k, s in symmetries.items()}
 
 
 def canonical_frames(frames: Sequence[bop.BopFrame], symmetries: dict[int, YawSymmetry | None]) -> list[bop.BopFrame]:
