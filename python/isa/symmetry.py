@@ -9,9 +9,10 @@ C4, C6 or continuous), and uses it twice:
   symmetries), an estimator blind to the symmetry is right on at most the share of the group that
   lies within the threshold of the true pose: 1/2 on a C2 table, whatever the method.
 - **Canonical training labels** (:func:`canonical_pose`, :func:`canonical_frames`): a training
-  view of a symmetric instance is labelled with the one pose of its group that puts the camera
-  nearest the object's front (-y), so that identical-looking training parts carry one rotation
-  label, not two that split the votes. Views, parts and the evaluation stay as they are.
+  view of a symmetric instance is labelled with the one pose of the category's shared group
+  (:func:`common_subgroup`) that puts the camera nearest the object's front (-y), so that
+  identical-looking training parts carry one rotation label, not two that split the votes, and
+  the forest answers with a fixed convention. Views, parts and the evaluation stay as they are.
 
 Poses are ``X_cam = R @ X_obj + t``; a turn ``g`` by ``theta`` about the vertical axis through
 ``centre`` maps the pose to ``R' = R g``, ``t' = t + R (centre - g centre)``: the same image.
