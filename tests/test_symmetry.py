@@ -12,8 +12,9 @@ from isa.camera import KINECT_V1
 from isa.exceptions import InvalidParameterError
 from isa.pose_metrics import model_diameter, model_points
 from isa.render import render_depth
+from isa.boxes3d import rot_z
 from isa.symmetry import (YawSymmetry, canonical_frames, canonical_pose, common_subgroup, find_yaw_symmetry,
-                          recall_ceiling, yaw_matrix)
+                          recall_ceiling)
 from isa.views import look_at
 
 OFFSET = np.array([0.21, -0.13, 0.4])  # the symmetry axis is not the object frame's z axis
@@ -115,7 +116,7 @@ def test_canonical_frames_relabel_only_symmetric_instances():
     blank = np.zeros((4, 4), np.float32)
     frames = [BopFrame(0, i, blank, blank > 0, KINECT_V1, R, t, obj_id=i) for i in (1, 2)]
     out = canonical_frames(frames, syms)
-    np.testing.assert_allclose(out[0].R, R @ yaw_matrix(np.pi), atol=1e-9)
+    np.testing.assert_allclose(out[0].R, R @ rot_z(np.pi), atol=1e-9)
     assert out[1] is frames[1]
     assert out[0].depth is frames[0].depth
 
@@ -137,4 +138,4 @@ def test_common_subgroup_is_the_turn_group_most_symmetric_instances_share():
     assert sym.order == 2
     R, t = look_at(OFFSET + [-2.2, 1.4, 1.5], target=OFFSET)
     Rc, tc = canonical_pose(R, t, sym)
-    np.testing.assert_allclose(Rc, R @ yaw_matrix(np.pi), atol=1e-9)
+    np.testing.assert_allclose(Rc, R @ rot_z(np.pi), atol=1e-9)

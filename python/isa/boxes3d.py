@@ -53,7 +53,8 @@ __all__ = [
 IOU_THRESHOLD = 0.25
 
 
-def _rot_z(yaw: float) -> np.ndarray:
+def rot_z(yaw: float) -> np.ndarray:
+    """Rotation by ``yaw`` (radians) about the z (up) axis."""
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 

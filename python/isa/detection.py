@@ -48,7 +48,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np  # noqa: E402
 
-from isa.boxes3d import IOU_THRESHOLD, APResult, Box3D, box_from_pose, evaluate_detections, iou_3d, nms  # noqa: E402
+from isa.boxes3d import IOU_THRESHOLD, APResult, Box3D, box_from_pose, evaluate_detections, iou_3d, nms, rot_z  # noqa: E402
 from isa.camera import Intrinsics  # noqa: E402
 from isa.categories import CATEGORIES  # noqa: E402
 from isa.exceptions import DataError  # noqa: E402
@@ -445,11 +445,6 @@ class DetectionParams:
         return json.loads(json.dumps(asdict(self)))
 
 
-def _rot_z(yaw: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def upright_rotation(R: np.ndarray, R_gravity: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Snap an object rotation (object to camera) to the nearest yaw about gravity.
 
@@ -464,7 +459,7 @@ def upright_rotation(R: np.ndarray, R_gravity: np.ndarray) -> tuple[np.ndarray, 
     yaw = yaw_from_rotation(M)
     tilt = math.degrees(math.acos(float(np.clip(M[2, 2] / max(np.linalg.norm(M[:, 2]), 1e-12), -1.0, 1.0))))
     # solve, not transpose: R_gravity from rounded calibration files is not exactly orthogonal.
-    return np.linalg.solve(Rg, _rot_z(yaw)), yaw, tilt
+    return np.linalg.solve(Rg, rot_z(yaw)), yaw, tilt
 
 
 def hypothesis_box(hypothesis: Mapping[str, Any], box: CategoryBox, R_gravity: np.ndarray,

@@ -28,6 +28,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from isa import bop
+from isa.boxes3d import rot_z
 from isa.exceptions import InvalidParameterError
 from isa.mirror import SYMMETRY_TOLERANCE
 
@@ -44,8 +45,8 @@ _CONTINUOUS_GRID = 720
 class YawSymmetry:
     """Turns about the vertical axis through ``centre`` (object frame) that map the instance onto
     itself: ``order`` n for the n turns by 360k/n degrees, 0 for every angle (continuous), 1 for
-    none. ``error``: the largest mean surface-to-turned-surface distance over the tested turns,
-    as a fraction of the diameter."""
+    none. ``error``: the largest mean surface-to-turned-surface distance over the group's tested
+    turns, as a fraction of the diameter (0 when there is no symmetry)."""
 
     centre: np.ndarray
     order: int
@@ -59,12 +60,6 @@ class YawSymmetry:
         """The group's turns in radians (``n_continuous`` evenly spaced ones if continuous)."""
         n = n_continuous if self.order == 0 else self.order
         return 2 * np.pi * np.arange(n) / n
-
-
-def yaw_matrix(theta: float) -> np.ndarray:
-    """Rotation by ``theta`` (radians) about the object frame's z (up) axis."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def find_yaw_symmetry(mesh: trimesh.Trimesh, tolerance: float = SYMMETRY_TOLERANCE, n_points: int = 20000,
@@ -90,7 +85,7 @@ def find_yaw_symmetry(mesh: trimesh.Trimesh, tolerance: float = SYMMETRY_TOLERAN
     local = pts - centre
 
     def error(theta: float) -> float:
-        return float(tree.query(local @ yaw_matrix(theta).T + centre)[0].mean()) / diam
+        return float(tree.query(local @ rot_z(theta).T + centre)[0].mean()) / diam
 
     errs = [error(np.radians(a)) for a in _CONTINUOUS_PROBES_DEG]
     if max(errs) < tolerance:
@@ -113,7 +108,7 @@ def recall_ceiling(points: np.ndarray, sym: YawSymmetry, diameter: float, z: flo
     X = np.asarray(points, float) - sym.centre
     if not (diameter > 0 and z >= 0):
         raise InvalidParameterError(f"need diameter > 0 and z >= 0, got {diameter}, {z}")
-    ok = [np.linalg.norm(X @ (yaw_matrix(a) - np.eye(3)).T, axis=1).mean() <= z * diameter for a in sym.angles()]
+    ok = [np.linalg.norm(X @ (rot_z(a) - np.eye(3)).T, axis=1).mean() <= z * diameter for a in sym.angles()]
     return float(np.mean(ok))
 
 
@@ -139,7 +134,7 @@ def canonical_pose(R: np.ndarray, t: np.ndarray, sym: YawSymmetry) -> tuple[np.n
     theta = canonical_turn(R, t, sym)
     if theta == 0.0:
         return R, t
-    g = yaw_matrix(theta)
+    g = rot_z(theta)
     return R @ g, t + R @ (sym.centre - g @ sym.centre)
 
 
