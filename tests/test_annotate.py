@@ -159,6 +159,26 @@ def test_quaternions_agree_with_scipy_including_half_turns():
     np.testing.assert_allclose(quaternion_to_matrix(q), Rs, atol=1e-9)
 
 
+def test_frames_are_read_once_in_order_and_may_be_a_generator():
+    sk = _skeleton(3)
+    frames = [_plane_frame(np.eye(3), np.array([dx, 0.0, 2.5]), sk) for dx in (-0.1, 0.0, 0.1)]
+    pulled = []
+
+    def gen():
+        for i, f in enumerate(frames):
+            pulled.append(i)
+            yield f
+
+    a, b = build_training_set(frames, stride=3), build_training_set(gen(), stride=3)
+    assert pulled == [0, 1, 2]
+    for k, v in a.arrays().items():
+        if k == "images":
+            assert all(np.array_equal(x, y) for x, y in zip(v, b.images)) and len(v) == len(b.images)
+        else:
+            np.testing.assert_array_equal(v, b.arrays()[k])
+    np.testing.assert_array_equal(a.crops, b.crops)
+
+
 def test_errors_name_the_argument():
     sk = _skeleton()
     f = _plane_frame(np.eye(3), np.array([0, 0, 2.0]), sk)

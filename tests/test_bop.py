@@ -63,6 +63,30 @@ def test_round_trip_is_exact(tmp_path):
     assert info["px_count_visib"] == frames[1][1].sum()
 
 
+def test_frame_sequence_reads_the_eager_frames_on_access(tmp_path):
+    frames = _frames(5)
+    for sid, (ids, obj) in {4: ([0, 3], 2), 9: ([1, 2, 7], 5)}.items():
+        with bop.SceneWriter(tmp_path, "train", sid) as w:
+            for k, im in enumerate(ids):
+                depth, mask, R, t, _ = frames[k + (sid == 9) * 2]
+                w.write_frame(im, depth, mask, K, R, t, obj_id=obj)
+    eager = bop.read_scene(tmp_path, "train", 4) + bop.read_scene(tmp_path, "train", 9)
+    lazy = bop.FrameSequence(tmp_path, "train")
+    assert len(lazy) == 5 and lazy.obj_ids == [2, 2, 5, 5, 5]
+    assert [(f.scene_id, f.im_id) for f in lazy] == [(4, 0), (4, 3), (9, 1), (9, 2), (9, 7)]
+    for a, b in zip(eager, lazy):
+        np.testing.assert_array_equal(a.depth, b.depth)
+        np.testing.assert_array_equal(a.mask, b.mask)
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_array_equal(a.t, b.t)
+    assert [f.im_id for f in lazy[1:4]] == [3, 1, 2] and lazy[-1].im_id == 7
+    with pytest.raises(IndexError):
+        lazy[5]
+    # Mapped copies follow their base item by item; obj_ids need no image.
+    mapped = bop.MappedFrames(lazy, [(4, None), (0, lambda f: f.im_id)])
+    assert mapped.obj_ids == [5, 2] and mapped[0].im_id == 7 and mapped[1] == 0 and len(mapped) == 2
+
+
 def test_depth_scale_tenth_mm(tmp_path):
     depth = np.full((K.height, K.width), 1.23456, np.float32)
     with bop.SceneWriter(tmp_path, "test", 1, depth_scale=0.1) as w:

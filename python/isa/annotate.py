@@ -18,7 +18,7 @@ vectorised over parts (a million parts take seconds).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -196,7 +196,7 @@ def _check_frame(i: int, f: Frame) -> None:
 
 
 def build_training_set(
-    frames: Sequence[Frame],
+    frames: Iterable[Frame],
     stride: int = 4,
     margin: int = 8,
     nodes: Sequence[int] | None = None,
@@ -211,51 +211,45 @@ def build_training_set(
     are projected (the paper projects 11 of 19; default all) and ``links`` which links give
     ``a`` (default: the skeleton's links between selected nodes).
 
-    Every frame's skeleton must have the same nodes count and links (one category template).
+    ``frames`` is read once, in order, and only each frame's crop is kept, so it may be a
+    generator over views read from disk (:class:`isa.bop.FrameSequence`). Every frame's skeleton
+    must have the same nodes count and links (one category template).
     """
-    if len(frames) == 0:
-        raise ValueError("frames: need at least one frame")
     if int(stride) < 1:
         raise ValueError(f"stride: must be >= 1, got {stride}")
     if int(margin) < 0:
         raise ValueError(f"margin: must be >= 0, got {margin}")
     stride, margin = int(stride), int(margin)
+    ref = None
+    images: list[np.ndarray] = []
+    crop_list: list[tuple[int, int]] = []
+    per_u, per_v, per_z, per_f = [], [], [], []
+    uvz_list, ssc_list, R_list, intr_list = [], [], [], []  # per frame: nodes (u, v, z), SSC, R, (fx, fy, cx, cy)
     for i, f in enumerate(frames):
         _check_frame(i, f)
-    ref = frames[0].skeleton
-    n_all = len(ref.nodes)
-    for i, f in enumerate(frames):
-        if len(f.skeleton.nodes) != n_all or not np.array_equal(f.skeleton.links, ref.links):
+        if ref is None:
+            ref = f.skeleton
+            n_all = len(ref.nodes)
+            sel = np.arange(n_all) if nodes is None else np.asarray(nodes, np.int64).reshape(-1)
+            if sel.size == 0 or sel.min() < 0 or sel.max() >= n_all:
+                raise ValueError(f"nodes: indices must be in [0, {n_all}), got {sel.tolist()}")
+            if links is None:
+                links_used = ref.links[np.isin(ref.links, sel).all(1)]
+            else:
+                links_used = np.asarray(links, np.int64).reshape(-1, 2)
+                if links_used.size and (links_used.min() < 0 or links_used.max() >= n_all):
+                    raise ValueError(f"links: node index out of range [0, {n_all})")
+        elif len(f.skeleton.nodes) != n_all or not np.array_equal(f.skeleton.links, ref.links):
             raise ValueError(f"frames[{i}].skeleton: differs in nodes/links from frames[0]; match all to one template")
-    sel = np.arange(n_all) if nodes is None else np.asarray(nodes, np.int64).reshape(-1)
-    if sel.size == 0 or sel.min() < 0 or sel.max() >= n_all:
-        raise ValueError(f"nodes: indices must be in [0, {n_all}), got {sel.tolist()}")
-    if links is None:
-        keep = np.isin(ref.links, sel).all(1)
-        links_used = ref.links[keep]
-    else:
-        links_used = np.asarray(links, np.int64).reshape(-1, 2)
-        if links_used.size and (links_used.min() < 0 or links_used.max() >= n_all):
-            raise ValueError(f"links: node index out of range [0, {n_all})")
-
-    F = len(frames)
-    images: list[np.ndarray] = []
-    crops = np.zeros((F, 2), np.int64)
-    per_u, per_v, per_z, per_f = [], [], [], []
-    node_uvz = np.zeros((F, n_all, 3))
-    ssc_cam = np.zeros((F, 3))
-    Rs = np.zeros((F, 3, 3))
-    intr = np.zeros((F, 4))  # fx, fy, cx, cy
-    for i, f in enumerate(frames):
         depth = np.asarray(f.depth, np.float32)
         mask = np.asarray(f.mask, bool)
         K = f.intrinsics
         R = np.asarray(f.R, float)
         t = np.asarray(f.t, float).reshape(3)
-        Rs[i] = R
-        intr[i] = (K.fx, K.fy, K.cx, K.cy)
-        node_uvz[i] = project_skeleton(f.skeleton, R, t, K)
-        ssc_cam[i] = R @ np.asarray(f.ssc, float).reshape(3) + t
+        R_list.append(R)
+        intr_list.append((K.fx, K.fy, K.cx, K.cy))
+        uvz_list.append(project_skeleton(f.skeleton, R, t, K))
+        ssc_list.append(R @ np.asarray(f.ssc, float).reshape(3) + t)
         # Bounding box from the boolean mask first (cheap), depth work only inside it.
         rows = np.flatnonzero(mask.any(1))
         cols = np.flatnonzero(mask.any(0)) if len(rows) else rows
@@ -266,11 +260,12 @@ def build_training_set(
             rows, cols = (rows[0] + r2, cols[0] + c2) if len(r2) else (r2, r2)
         if len(rows) == 0:  # an empty view contributes an empty crop and no parts
             images.append(np.zeros((1, 1), np.uint16))
+            crop_list.append((0, 0))
             continue
         h, w = depth.shape
         v0, v1 = max(0, rows[0] - margin), min(h, rows[-1] + 1 + margin)
         u0, u1 = max(0, cols[0] - margin), min(w, cols[-1] + 1 + margin)
-        crops[i] = (u0, v0)
+        crop_list.append((u0, v0))
         d = depth[v0:v1, u0:u1]
         fg = mask[v0:v1, u0:u1] & (d > 0) & np.isfinite(d)
         mm = np.rint(np.where(fg, d, 0) * 1000.0)
@@ -285,6 +280,14 @@ def build_training_set(
         per_v.append(gv[vv])
         per_z.append(sub[vv, uu].astype(np.float64) / 1000.0)  # the depth the core will see
         per_f.append(np.full(len(vv), i, np.int64))
+    if ref is None:
+        raise ValueError("frames: need at least one frame")
+    F = len(images)
+    crops = np.array(crop_list, np.int64).reshape(F, 2)
+    node_uvz = np.array(uvz_list, float).reshape(F, n_all, 3)
+    ssc_cam = np.array(ssc_list, float).reshape(F, 3)
+    Rs = np.array(R_list, float).reshape(F, 3, 3)
+    intr = np.array(intr_list, float).reshape(F, 4)
     if per_f:
         fi = np.concatenate(per_f)
         u = np.concatenate(per_u).astype(np.float64)

@@ -22,6 +22,7 @@ import json
 import os
 import tempfile
 import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -309,6 +310,65 @@ def read_scene(root: str | Path, split: str, scene_id: int) -> list[BopFrame]:
     d = scene_dir(root, split, scene_id)
     cache = {"camera": read_json(d / "scene_camera.json"), "gt": read_json(d / "scene_gt.json")}
     return [read_frame(root, split, scene_id, i, cache) for i in sorted(int(k) for k in cache["gt"])]
+
+
+class FrameSequence(Sequence):
+    """The frames of a BOP split, each read from disk when it is asked for and not kept.
+
+    A training set of thousands of 640x480 views (1.5 MB each in memory) then never sits in
+    memory whole; :func:`isa.annotate.build_training_set` keeps only each view's crop. Frames come in
+    scene then image order, as :func:`read_scene` gives them; ``obj_ids`` lists each frame's
+    object from the scenes' ``scene_gt.json`` without reading an image.
+    """
+
+    def __init__(self, root: str | Path, split: str) -> None:
+        self.root, self.split = Path(root), split
+        self._keys: list[tuple[int, int]] = []
+        self._cache: dict[int, dict] = {}
+        self.obj_ids: list[int] = []
+        for sid in list_scenes(root, split):
+            d = scene_dir(root, split, sid)
+            cache = {"camera": read_json(d / "scene_camera.json"), "gt": read_json(d / "scene_gt.json")}
+            self._cache[sid] = cache
+            for im in sorted(int(k) for k in cache["gt"]):
+                self._keys.append((sid, im))
+                self.obj_ids.append(int(cache["gt"][str(im)][0]["obj_id"]))
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        sid, im = self._keys[i]
+        return read_frame(self.root, self.split, sid, im, self._cache[sid])
+
+
+class MappedFrames(Sequence):
+    """Frames computed on access from another sequence: item ``k`` is ``fn(base[i])`` for
+    ``(i, fn) = items[k]`` (``base[i]`` itself when ``fn`` is None). Mirrored or relabelled copies
+    of a training set (:mod:`isa.mirror`, :mod:`isa.symmetry`) then cost no memory until used."""
+
+    def __init__(self, base: Sequence[BopFrame], items: list[tuple[int, Callable[[BopFrame], BopFrame] | None]]) -> None:
+        self.base, self.items = base, items
+        ids = frame_obj_ids(base)
+        self.obj_ids = [ids[i] for i, _ in items]
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[j] for j in range(*k.indices(len(self)))]
+        i, fn = self.items[k]
+        f = self.base[i]
+        return f if fn is None else fn(f)
+
+
+def frame_obj_ids(frames: Sequence[BopFrame]) -> list[int]:
+    """Each frame's ``obj_id``, without reading images when ``frames`` is lazy."""
+    ids = getattr(frames, "obj_ids", None)
+    return list(ids) if ids is not None else [f.obj_id for f in frames]
 
 
 def write_models_info(root: str | Path, infos: dict[int, dict]) -> None:

@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 from isa import __version__, pipeline  # noqa: E402
 from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, check_category  # noqa: E402
 from isa.exceptions import DataError  # noqa: E402
+from isa.bop import frame_obj_ids  # noqa: E402
 from isa.mirror import find_mirror, with_mirrored  # noqa: E402
 from isa.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling  # noqa: E402
 from isa.modelnet import paper_instances  # noqa: E402
@@ -117,7 +118,7 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     render_dataset(data, test.objects, split="test",
                    views=lambda o: default_test_views(o, per_obj, seed=cfg.seed))
     tm["render"] = time.perf_counter() - t0
-    train_frames = pipeline.load_frames(data, "train")
+    train_frames = pipeline.load_frames(data, "train", lazy=True)  # read on use: beyond runs hold 6,052 views
     forest_frames = train_frames  # Linemod and the figures keep the rendered views only
     if cfg.mirror:
         mirrors = {o.obj_id: find_mirror(o.mesh) for o in train.objects}
@@ -191,16 +192,19 @@ def _linemod(cfg, category, train, train_frames, test_frames, pts) -> dict:
     def is_correct(R, t, f) -> bool:
         return bool(average_distance(pts[f.obj_id], f.R, f.t, R, t) <= 0.1 * diam[f.obj_id])
 
-    by_obj: dict[int, list] = {}
-    for f in train_frames:
-        by_obj.setdefault(f.obj_id, []).append(f)
+    by_obj: dict[int, list[int]] = {}
+    for i, o in enumerate(frame_obj_ids(train_frames)):
+        by_obj.setdefault(o, []).append(i)
     objs = train.objects[: cfg.linemod_instances or None]
+
+    def detector(idx: list[int]):
+        fs = [train_frames[i] for i in idx]  # one instance's views at a time
+        return LinemodDetector.from_views([f.depth for f in fs], [f.mask for f in fs], [f.R for f in fs],
+                                          [f.t for f in fs], fs[0].intrinsics)
 
     def builders():
         for o in objs:
-            fs = by_obj[o.obj_id]
-            yield o.source, (lambda fs=fs: LinemodDetector.from_views(
-                [f.depth for f in fs], [f.mask for f in fs], [f.R for f in fs], [f.t for f in fs], fs[0].intrinsics))
+            yield o.source, (lambda idx=by_obj[o.obj_id]: detector(idx))
 
     t0 = time.perf_counter()
     lm = linemod_recall(builders(), test_frames, is_correct, progress=True)

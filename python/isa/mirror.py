@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 import trimesh
@@ -77,8 +78,10 @@ def mirrored_frame(frame: bop.BopFrame, mirror: Mirror) -> bop.BopFrame:
                    mask=np.ascontiguousarray(frame.mask[:, ::-1]), R=R, t=t, intrinsics=K2)
 
 
-def with_mirrored(frames: Sequence[bop.BopFrame], mirrors: dict[int, Mirror | None]) -> list[bop.BopFrame]:
-    """``frames`` followed by the mirrored copy of every frame whose object has a mirror."""
-    out = list(frames)
-    out.extend(mirrored_frame(f, mirrors[f.obj_id]) for f in frames if mirrors.get(f.obj_id) is not None)
-    return out
+def with_mirrored(frames: Sequence[bop.BopFrame], mirrors: dict[int, Mirror | None]) -> bop.MappedFrames:
+    """``frames`` followed by the mirrored copy of every frame whose object has a mirror; the
+    copies are made when they are read (:class:`isa.bop.MappedFrames`)."""
+    ids = bop.frame_obj_ids(frames)
+    items: list = [(i, None) for i in range(len(frames))]
+    items += [(i, partial(mirrored_frame, mirror=mirrors[o])) for i, o in enumerate(ids) if mirrors.get(o) is not None]
+    return bop.MappedFrames(frames, items)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 import trimesh
@@ -160,15 +161,17 @@ def common_subgroup(symmetries: dict[int, YawSymmetry]) -> dict[int, YawSymmetry
             for k, s in symmetries.items()}
 
 
-def canonical_frames(frames: Sequence[bop.BopFrame], symmetries: dict[int, YawSymmetry | None]) -> list[bop.BopFrame]:
+def canonical_frames(frames: Sequence[bop.BopFrame], symmetries: dict[int, YawSymmetry | None]) -> bop.MappedFrames:
     """``frames`` with the poses of symmetric instances replaced by their canonical ones (the
-    depth images stay; the projected skeleton follows the pose, so its nodes swap with the turn)."""
-    out = []
-    for f in frames:
-        sym = symmetries.get(f.obj_id)
-        if sym is None or not sym.is_symmetric:
-            out.append(f)
-            continue
-        R, t = canonical_pose(f.R, f.t, sym)
-        out.append(replace(f, R=R, t=t))
-    return out
+    depth images stay; the projected skeleton follows the pose, so its nodes swap with the turn).
+    Relabelled when read (:class:`isa.bop.MappedFrames`)."""
+    items: list = []
+    for i, o in enumerate(bop.frame_obj_ids(frames)):
+        sym = symmetries.get(o)
+        items.append((i, None if sym is None or not sym.is_symmetric else partial(_canonical_frame, sym=sym)))
+    return bop.MappedFrames(frames, items)
+
+
+def _canonical_frame(f: bop.BopFrame, sym: YawSymmetry) -> bop.BopFrame:
+    R, t = canonical_pose(f.R, f.t, sym)
+    return replace(f, R=R, t=t)
