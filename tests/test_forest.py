@@ -87,6 +87,22 @@ def test_privileged_terms_train_and_are_not_stored():
         Forest(**{**TOY_PARAMS, "quality": "Q1+Q2"}).fit(images, parts, off, rot)
 
 
+def test_on_tree_reports_each_tree_and_its_errors_surface(toy_forest):
+    _, (images, parts, off, rot) = toy_forest
+    done = []
+    f = Forest(**TOY_PARAMS)
+    f.core.fit(images, parts, off, rot, on_tree=done.append)
+    assert done == [1, 2, 3]
+    assert f.to_bytes() == Forest(**TOY_PARAMS).fit(images, parts, off, rot).to_bytes()  # the hook changes nothing
+
+    def boom(k):
+        raise RuntimeError(f"hook failed at tree {k}")
+
+    with pytest.raises(RuntimeError, match="tree 1"):
+        Forest(**TOY_PARAMS).core.fit(images, parts, off, rot, on_tree=boom)
+    Forest(**TOY_PARAMS).fit(images, parts, off, rot, progress=True)  # the tqdm bar drives the hook
+
+
 def test_determinism_threads_in_process():
     images, parts, off, rot = toy()
     la, no = privileged(parts)

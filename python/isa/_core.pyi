@@ -5,6 +5,7 @@ the stated dtype, shape and C-contiguity, finite values; anything else raises
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -49,10 +50,12 @@ class Forest:
         link_angles: npt.NDArray[np.float32] | None = None,
         node_offsets: npt.NDArray[np.float32] | None = None,
         metadata: str = "{}",
+        on_tree: Callable[[int], object] | None = None,
     ) -> None:
         """Trains (GIL released). images: uint16 (h, w) mm; parts (P, 3) int32 [image, u, v];
         offsets (P, 3) m; rotations (P, 4) (w, x, y, z); link_angles (P, L) rad; node_offsets
-        (P, 3N); metadata: an opaque JSON string stored in the model file."""
+        (P, 3N); metadata: an opaque JSON string stored in the model file; on_tree(trees_done)
+        after each tree (its first exception is raised when training ends)."""
     def save(self, path: str | os.PathLike[str]) -> None:
         """Writes the model atomically; ``IsaIOError`` on failure."""
     @staticmethod

@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from isa import _core
 from isa.exceptions import InvalidParameterError
@@ -131,14 +132,17 @@ class Forest:
         link_angles: np.ndarray | None = None,
         node_offsets: np.ndarray | None = None,
         metadata: dict[str, Any] | str | None = None,
+        progress: bool = False,
     ) -> Forest:
         """Trains on parts (see the module docstring for the arrays) and returns ``self``.
 
         ``metadata`` (a JSON-serialisable dict or a JSON string: category, SSC, skeleton, size...)
-        is stored verbatim in the model file.
+        is stored verbatim in the model file. ``progress`` shows a bar that advances per tree.
         """
         meta = _metadata_json(metadata)
-        self._core.fit(list(images), parts, offsets, rotations, link_angles, node_offsets, meta)
+        with tqdm(total=self.params.n_trees, desc="train", unit="tree", disable=not progress, leave=False) as bar:
+            self._core.fit(list(images), parts, offsets, rotations, link_angles, node_offsets, meta,
+                           on_tree=lambda done: bar.update(done - bar.n))
         return self
 
     # -- files -------------------------------------------------------------------------------

@@ -140,10 +140,12 @@ def load_frames(root: Path, split: str, lazy: bool = False) -> list[bop.BopFrame
     return frames if lazy else list(frames)
 
 
-def training_set(frames: Sequence[bop.BopFrame], skeletons: dict[int, SkeletonGraph], stride: int = 4) -> TrainingSet:
+def training_set(frames: Sequence[bop.BopFrame], skeletons: dict[int, SkeletonGraph], stride: int = 4,
+                 progress: bool = True) -> TrainingSet:
     """Annotated parts of rendered training frames (the forest's input); the frames are read
     once, one at a time, so a lazy sequence keeps only their crops in memory."""
-    fs = (Frame(f.depth, f.mask, f.R, f.t, f.intrinsics, skeletons[f.obj_id]) for f in frames)
+    bar = tqdm(frames, desc="annotate", unit="frame", disable=not progress, leave=False)
+    fs = (Frame(f.depth, f.mask, f.R, f.t, f.intrinsics, skeletons[f.obj_id]) for f in bar)
     return build_training_set(fs, stride=stride)
 
 
@@ -181,7 +183,7 @@ def scaled_predict_defaults(ts: TrainingSet) -> dict:
     return {"position_bandwidth": round(VOTE_BANDWIDTH * parts_diameter(ts), 4)}
 
 
-def train_forest(ts: TrainingSet, params: ForestParams, metadata: dict | None = None) -> Forest:
+def train_forest(ts: TrainingSet, params: ForestParams, metadata: dict | None = None, progress: bool = True) -> Forest:
     """Fit a forest on a training set; ``metadata`` (category, SSC, ...) goes into the model file,
     with size-aware inference defaults (``predict_defaults``, see :func:`scaled_predict_defaults`)
     unless it has its own."""
@@ -192,7 +194,7 @@ def train_forest(ts: TrainingSet, params: ForestParams, metadata: dict | None = 
         arrays["node_offsets"] = None
     metadata = dict(metadata or {})
     metadata.setdefault("predict_defaults", scaled_predict_defaults(ts))
-    forest.fit(**arrays, metadata=metadata)
+    forest.fit(**arrays, metadata=metadata, progress=progress)
     return forest
 
 

@@ -1,6 +1,7 @@
 //! `isa._core.Forest`: fit / save / load / pickle / leaves and votes of parts.
 
 use std::path::PathBuf;
+use std::sync::Mutex;
 
 use numpy::ndarray::Array2;
 use numpy::prelude::*;
@@ -129,8 +130,10 @@ impl PyForest {
         })
     }
 
-    /// Trains the forest (the GIL is released while training).
-    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}"))]
+    /// Trains the forest (the GIL is released while training). ``on_tree(trees_done)``, if
+    /// given, is called after each tree (for a progress bar); its first exception is raised once
+    /// training ends.
+    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}", on_tree=None))]
     #[allow(clippy::too_many_arguments)]
     fn fit(
         &mut self,
@@ -142,6 +145,7 @@ impl PyForest {
         link_angles: Option<&Bound<'_, PyAny>>,
         node_offsets: Option<&Bound<'_, PyAny>>,
         metadata: &str,
+        on_tree: Option<Py<PyAny>>,
     ) -> PyResult<()> {
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
@@ -164,15 +168,29 @@ impl PyForest {
         };
         let params = self.params.clone();
         let threads = self.n_threads;
+        let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
         let forest = py.detach(|| {
             let data = TrainingSet {
                 store: &store,
                 parts: &parts,
                 targets: raw,
             };
-            Forest::fit(&params, &data, metadata, threads)
+            let hook = |done: usize| {
+                if let Some(cb) = &on_tree {
+                    Python::attach(|py| {
+                        if let Err(e) = cb.call1(py, (done,)) {
+                            hook_err.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                        }
+                    });
+                }
+            };
+            Forest::fit_with_progress(&params, &data, metadata, threads, &hook)
         });
-        self.forest = Some(forest.map_err(to_py)?);
+        let forest = forest.map_err(to_py)?;
+        if let Some(e) = hook_err.into_inner().unwrap_or_else(|p| p.into_inner()) {
+            return Err(e);
+        }
+        self.forest = Some(forest);
         Ok(())
     }
 
