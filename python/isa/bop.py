@@ -312,7 +312,24 @@ def read_scene(root: str | Path, split: str, scene_id: int) -> list[BopFrame]:
     return [read_frame(root, split, scene_id, i, cache) for i in sorted(int(k) for k in cache["gt"])]
 
 
-class FrameSequence(Sequence):
+class _LazyFrames(Sequence):
+    """A sequence of frames made when indexed; ``obj_ids`` (one per frame) is known up front."""
+
+    obj_ids: list[int]
+
+    def __len__(self) -> int:
+        return len(self.obj_ids)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self._frame(k) for k in range(*i.indices(len(self)))]
+        return self._frame(i)
+
+    def _frame(self, i: int) -> BopFrame:
+        raise NotImplementedError
+
+
+class FrameSequence(_LazyFrames):
     """The frames of a BOP split, each read from disk when it is asked for and not kept.
 
     A training set of thousands of 640x480 views (1.5 MB each in memory) then never sits in
@@ -325,7 +342,7 @@ class FrameSequence(Sequence):
         self.root, self.split = Path(root), split
         self._keys: list[tuple[int, int]] = []
         self._cache: dict[int, dict] = {}
-        self.obj_ids: list[int] = []
+        self.obj_ids = []
         for sid in list_scenes(root, split):
             d = scene_dir(root, split, sid)
             cache = {"camera": read_json(d / "scene_camera.json"), "gt": read_json(d / "scene_gt.json")}
@@ -334,17 +351,12 @@ class FrameSequence(Sequence):
                 self._keys.append((sid, im))
                 self.obj_ids.append(int(cache["gt"][str(im)][0]["obj_id"]))
 
-    def __len__(self) -> int:
-        return len(self._keys)
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self[k] for k in range(*i.indices(len(self)))]
+    def _frame(self, i: int) -> BopFrame:
         sid, im = self._keys[i]
         return read_frame(self.root, self.split, sid, im, self._cache[sid])
 
 
-class MappedFrames(Sequence):
+class MappedFrames(_LazyFrames):
     """Frames computed on access from another sequence: item ``k`` is ``fn(base[i])`` for
     ``(i, fn) = items[k]`` (``base[i]`` itself when ``fn`` is None). Mirrored or relabelled copies
     of a training set (:mod:`isa.mirror`, :mod:`isa.symmetry`) then cost no memory until used."""
@@ -354,12 +366,7 @@ class MappedFrames(Sequence):
         ids = frame_obj_ids(base)
         self.obj_ids = [ids[i] for i, _ in items]
 
-    def __len__(self) -> int:
-        return len(self.items)
-
-    def __getitem__(self, k):
-        if isinstance(k, slice):
-            return [self[j] for j in range(*k.indices(len(self)))]
+    def _frame(self, k: int) -> BopFrame:
         i, fn = self.items[k]
         f = self.base[i]
         return f if fn is None else fn(f)
