@@ -142,7 +142,7 @@ class Forest:
         meta = _metadata_json(metadata)
         with tqdm(total=self.params.n_trees, desc="train", unit="tree", disable=not progress, leave=False) as bar:
             self._core.fit(list(images), parts, offsets, rotations, link_angles, node_offsets, meta,
-                           on_tree=lambda done: bar.update(done - bar.n))
+                           on_tree=(lambda done: bar.update(done - bar.n)) if progress else None)
         return self
 
     # -- files -------------------------------------------------------------------------------
