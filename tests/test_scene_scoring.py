@@ -66,6 +66,7 @@ def test_hand_computed_case():
         r = s.metrics["chair"][m]
         assert r.ap == pytest.approx(0.75), m
         assert (r.n_ground_truth, r.n_ignored, r.n_detections, r.n_true_positive) == (2, 1, 4, 2)
+        assert r.final_recall == 1.0
         np.testing.assert_allclose(r.precision, [1, 1 / 2, 1 / 3, 1 / 2])
         np.testing.assert_allclose(r.recall, [0.5, 0.5, 0.5, 1.0])
         # Every bin's one object is found (the ignored one too, by the detection on it).

@@ -52,6 +52,8 @@ __all__ = [
     "evaluate",
     "symmetry_transforms",
     "rotation_error_deg",
+    "ground_truth_box",
+    "LEVEL_GRAVITY",
     "METRICS",
     "VISIB_BINS",
     "MIN_VISIB",
@@ -69,8 +71,8 @@ Z = 0.1
 #: Steps of a continuous symmetry (one degree).
 N_CONTINUOUS = 360
 
-#: The level camera's gravity: OpenCV camera axes renamed to the upright frame's (z up).
-_LEVEL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+#: The level camera's gravity (used where a frame has none): OpenCV camera axes renamed to the upright frame's (z up).
+LEVEL_GRAVITY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
 def _vec3(v, name: str) -> np.ndarray:
@@ -115,7 +117,7 @@ class Detection:
 
     def box(self, gravity: np.ndarray | None = None) -> Box3D:
         """The gravity-aligned box in the upright frame (tilt dropped, :func:`isa.boxes3d.box_from_pose`)."""
-        Rg = _LEVEL if gravity is None else gravity
+        Rg = LEVEL_GRAVITY if gravity is None else gravity
         return box_from_pose(self.R, self.t, self.size, -self.box_centre, Rg, self.category, self.score)
 
     @classmethod
@@ -124,7 +126,7 @@ class Detection:
         inverse of :meth:`box`: what :func:`isa.detection.detect` reports, as a 6D detection.
         ``box_centre``: where the box centre is in the object frame (the category box's
         ``-ssc_offset``)."""
-        Rg = _LEVEL if gravity is None else np.asarray(gravity, dtype=float)
+        Rg = LEVEL_GRAVITY if gravity is None else np.asarray(gravity, dtype=float)
         # solve, not transpose: gravity read from rounded calibration files is not exactly orthogonal.
         R = np.linalg.solve(Rg, rot_z(box.yaw))
         c = np.asarray(box_centre, dtype=float)
@@ -267,6 +269,11 @@ def _target(g, gravity: np.ndarray, cache: dict) -> _Target:
     return _Target(g.category, box, float("nan") if v is None else float(v), R, t, pts, diam, sR, st)
 
 
+def ground_truth_box(g, gravity: np.ndarray | None = None) -> Box3D:
+    """A ground-truth object's gravity-aligned box in the upright frame (a Box3D is returned as is)."""
+    return _target(g, LEVEL_GRAVITY if gravity is None else gravity, {}).box
+
+
 def _candidate(d, gravity: np.ndarray) -> _Candidate:
     if isinstance(d, Box3D):
         return _Candidate(d.category, d, d.score)
@@ -350,10 +357,15 @@ class MetricScore:
     median_translation_m: float | None
     median_rotation_deg: float | None
 
+    @property
+    def final_recall(self) -> float:
+        """Recall of the counted objects over all detections (nan without counted objects)."""
+        return self.n_true_positive / self.n_ground_truth if self.n_ground_truth else float("nan")
+
     def to_dict(self) -> dict:
         """JSON-ready, percentages 0-100, None for nan."""
         pct = (lambda v: None if v is None or math.isnan(v) else 100.0 * v)
-        return {"ap": pct(self.ap), "n_ground_truth": self.n_ground_truth, "n_ignored": self.n_ignored,
+        return {"ap": pct(self.ap), "recall": pct(self.final_recall), "n_ground_truth": self.n_ground_truth, "n_ignored": self.n_ignored,
                 "n_detections": self.n_detections, "n_true_positive": self.n_true_positive,
                 "recall_by_visib": {k: {"recall": pct(r), "n": n} for k, (r, n) in self.recall_by_visib.items()},
                 "ap_by_visib": {k: pct(v) for k, v in self.ap_by_visib.items()},
@@ -443,7 +455,7 @@ def evaluate(ground_truth: Sequence[Sequence], detections: Sequence[Sequence], g
         raise InvalidInputError(f"evaluate: {len(gravity)} gravity rotations for {len(ground_truth)} frames")
     if not 0 <= min_visib <= 1:
         raise InvalidParameterError(f"min_visib: must be in [0, 1], got {min_visib}")
-    grav = [_LEVEL if g is None else _rot(g, f"gravity[{f}]") for f, g in enumerate(gravity)]
+    grav = [LEVEL_GRAVITY if g is None else _rot(g, f"gravity[{f}]") for f, g in enumerate(gravity)]
     cache: dict = {}
     targets = [[_target(g, grav[f], cache) for g in frame] for f, frame in enumerate(ground_truth)]
     cands = [[_candidate(d, grav[f]) for d in frame] for f, frame in enumerate(detections)]
