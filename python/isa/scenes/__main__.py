@@ -21,10 +21,6 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from isa.exceptions import IsaError  # noqa: E402
 
-#: results.json schema written by the scene benchmark and the experiment (docs/results.md).
-RESULTS_SCHEMA = "isa-results/2"
-
-
 def parse_models(text: str) -> dict[str, str]:
     """``chair=a.isa,table=b.isa`` -> {category: path}."""
     out = {}
@@ -46,6 +42,7 @@ def _detection_params(a):
 
 def _write(report, a, t0: float, title_kind: str) -> Path:
     from isa import __version__
+    from isa.report import RESULTS_SCHEMA
 
     report.results.update({"schema": RESULTS_SCHEMA, "isa_version": __version__, "command": title_kind,
                            "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()
