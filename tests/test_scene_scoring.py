@@ -27,6 +27,7 @@ class GT:
     visib_fract: float
     symmetries: tuple = ()
     points: np.ndarray | None = None
+    symmetry_centre: np.ndarray | None = None
 
 
 def cuboid_points(size, n=2000, seed=0, centre=(0.0, 0.0, 0.0)):
@@ -147,13 +148,12 @@ def test_table_turned_half_way_counts_only_with_symmetries(form):
     c = np.array([0.1, -0.05, 0.2])
     pts = cuboid_points(TABLE, centre=c)
     g = rot_z(math.pi)
-    sym = {"3x3": None, "4x4": np.block([[g, (c - g @ c)[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]]),
-           "yaw": YawSymmetry(c, 2, 0.0)}[form]
-    if form == "3x3":  # a plain rotation turns about the origin: put the origin on the axis
-        pts, c = pts - c, np.zeros(3)
+    # As isa.scenes.io reads models_info: the group's rotations about the vertical through a centre.
+    sym = {"3x3": [np.eye(3), g], "4x4": [np.block([[g, (c - g @ c)[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])],
+           "yaw": [YawSymmetry(c, 2, 0.0)]}[form]
     R = rot_z(0.3) @ np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # object z up -> camera -y
     t = np.array([0.2, 0.4, 3.0])
-    truth = GT("table", R, t, TABLE, 0.8, (g if form == "3x3" else sym,), pts)
+    truth = GT("table", R, t, TABLE, 0.8, sym, pts, c if form == "3x3" else None)
     turned = Detection("table", R @ g, t + R @ (c - g @ c), TABLE, 1.0, c)  # the same surface
     s = evaluate([[truth]], [[turned]])
     m = s.metrics["table"]
@@ -171,7 +171,8 @@ def test_round_table_any_turn():
     pts = cuboid_points((0.9, 0.9, 0.7))
     r = np.hypot(pts[:, 0], pts[:, 1])
     pts = pts[r <= 0.45]  # near enough round about z for a 0.1-diameter threshold
-    truth = GT("table", np.eye(3), np.array([0, 0, 3.0]), np.array([0.9, 0.9, 0.7]), 1.0, ("continuous-z",), pts)
+    c = np.array([0.0, 0.0, -0.3])  # a centre on the axis, below the origin: the turn moves nothing
+    truth = GT("table", np.eye(3), np.array([0, 0, 3.0]), np.array([0.9, 0.9, 0.7]), 1.0, "continuous-z", pts, c)
     turned = Detection("table", rot_z(0.7), np.array([0, 0, 3.0]), np.array([0.9, 0.9, 0.7]), 1.0)
     m = evaluate([[truth]], [[turned]]).metrics["table"]
     assert m["6d"].ap == 0.0 and m["6d_sym"].ap == 1.0
@@ -190,6 +191,8 @@ def test_symmetry_forms_agree():
         np.testing.assert_allclose(ts[1], c - g @ c, atol=1e-12)
     Rs, ts = symmetry_transforms([{"axis": (0, 0, 1), "offset": c}], n_continuous=4)
     np.testing.assert_allclose(Rs[2] @ c + ts[2], c, atol=1e-12)  # points on the axis stay
+    Rs, ts = symmetry_transforms([np.eye(3), g], centre=c)  # isa.scenes.io's form
+    np.testing.assert_allclose(ts[2], c - g @ c, atol=1e-12)
     with pytest.raises(InvalidInputError):
         symmetry_transforms(["mirror"])
 

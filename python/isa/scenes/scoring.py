@@ -155,17 +155,22 @@ def _axis_rotation(axis: np.ndarray, theta: float) -> np.ndarray:
     return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * (K @ K)
 
 
-def symmetry_transforms(symmetries: Sequence = (), n_continuous: int = N_CONTINUOUS) -> tuple[np.ndarray, np.ndarray]:
+def symmetry_transforms(symmetries: Sequence | str = (), n_continuous: int = N_CONTINUOUS,
+                        centre=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """The symmetry group of an instance as object-frame transforms ``x -> R_s x + t_s``:
     ``(R (k, 3, 3), t (k, 3))``, the identity first.
 
-    Each item is a 3x3 rotation (about the origin), a 4x4 or flat 16 rigid transform (translation
-    in metres: BOP's ``symmetries_discrete`` once converted from mm), ``"continuous-z"`` (every
-    turn about the object's z axis through the origin), a BOP continuous symmetry
-    ``{"axis": (3,), "offset": (3,) metres}``, or a :class:`isa.symmetry.YawSymmetry` (turns about
-    the vertical through its ``centre``). Continuous ones are sampled every 360 / ``n_continuous``
-    degrees; duplicates are kept (they change no minimum).
+    Each item is a 3x3 rotation (about ``centre``: :class:`isa.scenes.io.GroundTruth`'s
+    ``symmetry_centre``), a 4x4 or flat 16 rigid transform (translation in metres: BOP's
+    ``symmetries_discrete`` once converted from mm), ``"continuous-z"`` (every turn about the
+    vertical through ``centre``; alone or in a list), a BOP continuous symmetry ``{"axis": (3,),
+    "offset": (3,) metres}``, or a :class:`isa.symmetry.YawSymmetry` (turns about the vertical
+    through its own ``centre``). Continuous ones are sampled every 360 / ``n_continuous`` degrees;
+    duplicates (the identity listed again) change no minimum.
     """
+    if isinstance(symmetries, str):
+        symmetries = [symmetries]
+    c0 = _vec3(centre, "symmetry centre")
     Rs, ts = [np.eye(3)], [np.zeros(3)]
 
     def turns(axis, offset, angles):
@@ -178,7 +183,7 @@ def symmetry_transforms(symmetries: Sequence = (), n_continuous: int = N_CONTINU
         if isinstance(s, str):
             if s != "continuous-z":
                 raise InvalidInputError(f"symmetry: unknown name {s!r} (expected 'continuous-z')")
-            turns((0, 0, 1), (0, 0, 0), 2 * np.pi * np.arange(1, n_continuous) / n_continuous)
+            turns((0, 0, 1), c0, 2 * np.pi * np.arange(1, n_continuous) / n_continuous)
         elif isinstance(s, Mapping):
             if "axis" not in s:
                 raise InvalidInputError(f"symmetry: a continuous symmetry needs 'axis', got {s!r}")
@@ -197,7 +202,7 @@ def symmetry_transforms(symmetries: Sequence = (), n_continuous: int = N_CONTINU
                 ts.append(a[:3, 3])
             elif a.shape == (3, 3):
                 Rs.append(a)
-                ts.append(np.zeros(3))
+                ts.append(c0 - a @ c0)
             else:
                 raise InvalidInputError(f"symmetry: expected a 3x3 or 4x4 matrix, got shape {a.shape}")
     return np.array(Rs), np.array(ts)
@@ -263,7 +268,8 @@ def _target(g, gravity: np.ndarray, cache: dict) -> _Target:
         diam = model_diameter(pts)
         if key is not None:
             cache[key] = (pts, diam, centre)
-    sR, st = symmetry_transforms(getattr(g, "symmetries", ()) or ())
+    syms, sc = getattr(g, "symmetries", None), getattr(g, "symmetry_centre", None)
+    sR, st = symmetry_transforms(() if syms is None else syms, centre=(0.0, 0.0, 0.0) if sc is None else sc)
     v = getattr(g, "visib_fract", None)
     box = box_from_pose(R, t, size, -centre, gravity, g.category)
     return _Target(g.category, box, float("nan") if v is None else float(v), R, t, pts, diam, sR, st)
