@@ -189,10 +189,10 @@ def _pct(v) -> str:
 
 def scenes_section(report, name: str, views: Sequence[View], detections: Sequence[Sequence[Detection]],
                    scores: Scores, info: Mapping[str, Any] | None = None, n_figures: int = 3,
-                   heading_level: int = 2, description: str = "") -> dict:
-    """Add one dataset's section to ``report`` (tables, AP over visible fraction, a few frames
-    with detections and ground truth) and put its numbers in ``report.results["scenes"][name]``
-    (also returned)."""
+                   heading_level: int = 2, description: str = "", draw_top: int = 3) -> dict:
+    """Add one dataset's section to ``report`` (tables, AP over visible fraction, ``n_figures``
+    frames with their ground truth and ``draw_top`` best detections per category) and put its
+    numbers in ``report.results["scenes"][name]`` (also returned)."""
     from isa.figures.scenes import scene_figure
     from isa.scenes.figures import ap_by_visibility_figure
     from isa.scenes.scoring import LEVEL_GRAVITY
@@ -243,11 +243,12 @@ def scenes_section(report, name: str, views: Sequence[View], detections: Sequenc
         grav = LEVEL_GRAVITY if v.gravity is None else v.gravity
         gt = tuple(ground_truth_box(g, grav) for g in v.gt if g.category in cats)
         frame = SceneFrame(v.name, v.depth, v.intrinsics, grav, gt, Path("."))
-        boxes = [d.box(grav) for d in detections[i]]
+        boxes = [d.box(grav) for c in cats
+                 for d in sorted((d for d in detections[i] if d.category == c), key=lambda d: -d.score)[:draw_top]]
         p = scene_figure(frame, boxes, report.figure_path(f"scenes-{slug}-{v.name.replace('/', '-')}.png"),
                          title=f"{name} {v.name}: ground truth (red), detections (green)")
-        report.image(p, f"{name}, frame {v.name}: detections (green, with scores) and ground truth (red) over the "
-                        "depth image (left) and from above (right)")
+        report.image(p, f"{name}, frame {v.name}: the {draw_top} best detections per category (green, with scores) "
+                        "and the ground truth (red) over the depth image (left) and from above (right)")
     report.results.setdefault("scenes", {})[name] = data
     return data
 
