@@ -62,6 +62,8 @@ __all__ = [
 
 #: The metrics, in report order.
 METRICS: tuple[str, ...] = ("6d", "6d_sym", "box_0.25", "box_0.5")
+#: The box metrics' IoU thresholds (0.25: Sliding Shapes, the paper's real-data metric).
+IOU_THRESHOLDS = {"box_0.25": 0.25, "box_0.5": 0.5}
 #: Visible-fraction bins of the recall (the last one includes 1.0).
 VISIB_BINS: tuple[tuple[float, float], ...] = ((0.1, 0.3), (0.3, 0.6), (0.6, 1.0))
 #: Objects less visible than this are ignored ground truth (targets are quoted at visib >= 0.3).
@@ -449,8 +451,7 @@ def _in_bin(v: float, lo: float, hi: float) -> bool:
 
 
 def evaluate(ground_truth: Sequence[Sequence], detections: Sequence[Sequence], gravity: Sequence | None = None,
-             categories: Sequence[str] | None = None, min_visib: float = MIN_VISIB, z: float = Z,
-             iou_thresholds: Sequence[float] = (0.25, 0.5)) -> Scores:
+             categories: Sequence[str] | None = None, min_visib: float = MIN_VISIB, z: float = Z) -> Scores:
     """Score ``detections[f]`` against ``ground_truth[f]`` over all frames, per category (see the
     module docstring). ``gravity[f]``: the frame's camera-to-upright rotation (None: level camera),
     used for the boxes; ``categories``: those scored (default: every category in either list)."""
@@ -468,8 +469,7 @@ def evaluate(ground_truth: Sequence[Sequence], detections: Sequence[Sequence], g
     if categories is None:
         categories = sorted({x.category for fr in targets + cands for x in fr})
     categories = list(categories)
-    metric_names = ("6d", "6d_sym") + tuple(f"box_{t:g}" for t in iou_thresholds)
-    outcome: list[list[dict]] = [[{m: None for m in metric_names} for _ in fr] for fr in cands]
+    outcome: list[list[dict]] = [[{m: None for m in METRICS} for _ in fr] for fr in cands]
     results: dict[str, dict[str, MetricScore | None]] = {}
     for cat in categories:
         tg = [[g for g in fr if g.category == cat] for fr in targets]
@@ -482,7 +482,7 @@ def evaluate(ground_truth: Sequence[Sequence], detections: Sequence[Sequence], g
         det_row = [e[2] for e in entries]
         visib = [np.array([g.visib for g in fr], dtype=float) for fr in tg]
         results[cat] = {}
-        for m in metric_names:
+        for m in METRICS:
             if m.startswith("6d"):
                 if not has_pose:
                     results[cat][m] = None
@@ -491,7 +491,7 @@ def evaluate(ground_truth: Sequence[Sequence], detections: Sequence[Sequence], g
                 thr = -z
             else:
                 S = [iou_matrix([d.box for d in cd[f]], [g.box for g in tg[f]]) for f in range(len(tg))]
-                thr = float(m.split("_")[1])
+                thr = IOU_THRESHOLDS[m]
             results[cat][m], ranked_outcome = _score(cat, m, order, det_frame, det_row, S, thr, visib, min_visib, cd,
                                                      tg, has_pose)
             for k, d in enumerate(order):
