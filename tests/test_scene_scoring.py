@@ -7,11 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-
-from isa.boxes3d import Box3D, average_precision, rot_z
+from isa.evaluation.boxes3d import Box3D, average_precision, rot_z
 from isa.exceptions import InvalidInputError, InvalidParameterError
+from isa.privileged.symmetry import YawSymmetry
 from isa.scenes.scoring import Detection, evaluate, symmetry_transforms
-from isa.symmetry import YawSymmetry
 
 SIZE = np.array([0.5, 0.5, 0.9])
 
@@ -39,12 +38,12 @@ def cuboid_points(size, n=2000, seed=0, centre=(0.0, 0.0, 0.0)):
     return p * np.asarray(size) + np.asarray(centre)
 
 
-def det(t, score, R=np.eye(3), size=SIZE, category="chair"):
-    return Detection(category, R, np.asarray(t, float), size, score)
+def det(t, score, R=None, size=SIZE, category="chair"):
+    return Detection(category, np.eye(3) if R is None else R, np.asarray(t, float), size, score)
 
 
-def gt(t, visib, R=np.eye(3), category="chair", **kw):
-    return GT(category, R, np.asarray(t, float), SIZE, visib, **kw)
+def gt(t, visib, R=None, category="chair", **kw):
+    return GT(category, np.eye(3) if R is None else R, np.asarray(t, float), SIZE, visib, **kw)
 
 
 def hand_case():
@@ -128,7 +127,7 @@ def test_box_ap_is_voc_all_points(seed):
     n_gt = sum(len(g) for g in gts)
     assert r.n_ground_truth == n_gt and 0 < r.n_true_positive < len(tp)
     assert r.ap == pytest.approx(voc_all_points(tp, n_gt))
-    # The same numbers as isa.boxes3d's evaluation (the real-data path today), at both thresholds.
+    # The same numbers as isa.evaluation.boxes3d's evaluation (the real-data path today), at both thresholds.
     for thr, m in ((0.25, "box_0.25"), (0.5, "box_0.5")):
         ref = average_precision(dets, gts, "chair", iou_threshold=thr)
         assert s.metrics["chair"][m].ap == pytest.approx(ref.ap)
@@ -226,9 +225,9 @@ def test_bad_input_is_named():
 @pytest.fixture(scope="module")
 def tiny_bench(tmp_path_factory):
     pytest.importorskip("isa.scenes.writer", reason="the rooms helper's scene writer is not merged yet")
-    from isa.dataset import procedural_objects
-    from isa.detection import train_detector
-    from isa.forest import ForestParams
+    from isa.detection.training import train_detector
+    from isa.forest.model import ForestParams
+    from isa.render.dataset import procedural_objects
     from isa.scenes import make_scenes, sources
 
     tmp = tmp_path_factory.mktemp("bench")

@@ -1,9 +1,9 @@
-"""``python -m isa.scenes {make,run,evaluate}``: the scene benchmark from the command line.
+"""``python -m isa scenes {make,run,evaluate}`` (or ``python -m isa.scenes``): the scene benchmark from the command line.
 
-    python -m isa.scenes make --out out/scenes/procedural --source procedural --scenes 4 --views 3
-    python -m isa.scenes run --models chair=chair.isa,table=table.isa --scenes out/scenes/procedural \\
+    python -m isa scenes make --out out/scenes/procedural --source procedural --scenes 4 --views 3
+    python -m isa scenes run --models chair=chair.isa,table=table.isa --scenes out/scenes/procedural \\
         --split test --sun ../shared/data/sunrgbd --out out/bench
-    python -m isa.scenes evaluate --detections out/bench/detections.json --out out/bench-rescored
+    python -m isa scenes evaluate --detections out/bench/detections.json --out out/bench-rescored
 
 ``run`` writes ``report.md`` (tables and PNGs), ``results.json`` (schema ``isa-results/2``,
 docs/results.md) and ``detections.json`` (what ``evaluate`` scores again without the models).
@@ -19,7 +19,8 @@ from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from isa.exceptions import IsaError  # noqa: E402
+from isa.exceptions import IsaError
+
 
 def parse_models(text: str) -> dict[str, str]:
     """``chair=a.isa,table=b.isa`` -> {category: path}."""
@@ -35,14 +36,14 @@ def parse_models(text: str) -> dict[str, str]:
 
 
 def _detection_params(a):
-    from isa.detection import DetectionParams
+    from isa.detection.hypotheses import DetectionParams
 
     return DetectionParams(stride=a.stride, max_hypotheses=a.hypotheses)
 
 
 def _write(report, a, t0: float, title_kind: str) -> Path:
     from isa import __version__
-    from isa.report import RESULTS_SCHEMA
+    from isa.report.report import RESULTS_SCHEMA
 
     report.results.update({"schema": RESULTS_SCHEMA, "isa_version": __version__, "command": title_kind,
                            "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()
@@ -95,7 +96,7 @@ def cmd_make(a) -> None:
 
 
 def cmd_run(a) -> None:
-    from isa.report import Report
+    from isa.report.report import Report
     from isa.scenes.benchmark import run_datasets, save_detections
 
     t0 = time.perf_counter()
@@ -116,7 +117,7 @@ def cmd_run(a) -> None:
 
 
 def cmd_evaluate(a) -> None:
-    from isa.report import Report
+    from isa.report.report import Report
     from isa.scenes.benchmark import load_detections, rescore
 
     t0 = time.perf_counter()
@@ -138,7 +139,7 @@ def _print_summary(scenes: dict) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m isa.scenes", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m isa scenes", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     mk = sub.add_parser("make", help="write a scene benchmark split (BOP)")
@@ -158,7 +159,7 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--split", default="test", help="split folder of the scene roots (default test)")
     run.add_argument("--sun", metavar="DIR", help="also score the SUN RGB-D frames under DIR (boxes only)")
     run.add_argument("--limit", type=int, default=None, help="first N frames of each dataset only")
-    from isa.detection import DetectionParams
+    from isa.detection.hypotheses import DetectionParams
 
     run.add_argument("--stride", type=int, default=DetectionParams.stride, help="voting stride in pixels")
     run.add_argument("--hypotheses", type=int, default=DetectionParams.max_hypotheses,

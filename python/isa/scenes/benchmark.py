@@ -5,15 +5,15 @@ ground truth): BOP scene folders written by :func:`isa.scenes.make_scenes` or th
 (:func:`scene_views`, ground truth with exact 6D poses), or SUN RGB-D frames (:func:`sun_views`,
 ground-truth boxes only). Every dataset goes through the same steps:
 
-1. :func:`detect_views`: today's detection (:func:`isa.detection.detect_frame`: planes removed,
+1. :func:`detect_views`: today's detection (:func:`isa.detection.hypotheses.detect_frame`: planes removed,
    votes, gravity snapping, floor rest, NMS) with the gravity the dataset gives, each box turned
    back into a 6D :class:`isa.scenes.scoring.Detection` with the category box's size;
 2. :func:`isa.scenes.scoring.evaluate`: 6D and 3D-box AP, recall and AP by visible fraction;
-3. :func:`scenes_section`: tables and pictures into an :class:`isa.report.Report`, the numbers
+3. :func:`scenes_section`: tables and pictures into an :class:`isa.report.report.Report`, the numbers
    into ``report.results["scenes"][name]`` (``results.json``, schema in docs/results.md).
 
 Detections are stored (:func:`save_detections`, ``detections.json``) so that they can be scored
-again without the models (``python -m isa.scenes evaluate``).
+again without the models (``python -m isa scenes evaluate``).
 """
 
 from __future__ import annotations
@@ -22,31 +22,38 @@ import json
 import math
 import os
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
-
 from isa.camera import Intrinsics
 from isa.exceptions import DataError
-from isa.scenes.scoring import METRICS, VISIB_BINS, Detection, Scores, evaluate, ground_truth_box
+from isa.scenes.scoring import (
+    METRICS,
+    VISIB_BINS,
+    Detection,
+    Scores,
+    evaluate,
+    ground_truth_box,
+)
+from tqdm.auto import tqdm
 
 __all__ = [
-    "View",
-    "scene_views",
-    "sun_views",
-    "load_models",
-    "detect_views",
-    "save_detections",
-    "load_detections",
-    "score_views",
-    "scenes_section",
-    "dataset_views",
-    "run_datasets",
-    "rescore",
     "DETECTIONS_SCHEMA",
+    "View",
+    "dataset_views",
+    "detect_views",
+    "load_detections",
+    "load_models",
+    "rescore",
+    "run_datasets",
+    "save_detections",
+    "scene_views",
+    "scenes_section",
+    "score_views",
+    "sun_views",
 ]
 
 #: Version tag of ``detections.json``.
@@ -60,7 +67,7 @@ _METRIC_NAMES = {"6d": "6D (Eq. 14, z = 0.1)", "6d_sym": "6D, symmetries forgive
 class View:
     """One frame of a dataset: ``name`` (``scene/im`` ids or the SUN frame), ``depth`` (H, W)
     float32 metres, ``intrinsics``, ``gravity`` (3, 3) camera to upright or None, ``gt`` the
-    ground truth (:class:`isa.scenes.io.GroundTruth` or :class:`isa.boxes3d.Box3D`)."""
+    ground truth (:class:`isa.scenes.io.GroundTruth` or :class:`isa.evaluation.boxes3d.Box3D`)."""
 
     name: str
     depth: np.ndarray
@@ -90,17 +97,17 @@ def scene_views(root: str | os.PathLike, split: str = "test", limit: int | None 
 
 
 def sun_views(root: str | os.PathLike) -> list[View]:
-    """The SUN RGB-D frames under ``root`` (:func:`isa.detection.load_real_frames`), boxes as ground truth."""
-    from isa.detection import load_real_frames
+    """The SUN RGB-D frames under ``root`` (:func:`isa.detection.real.load_real_frames`), boxes as ground truth."""
+    from isa.detection.real import load_real_frames
 
     return [View(f.name, f.depth, f.intrinsics, f.R_gravity, tuple(f.boxes)) for f in load_real_frames(root)]
 
 
 def load_models(models: Mapping[str, Any]) -> tuple[dict, dict]:
-    """``(forests, sources)``: category -> :class:`isa.forest.Forest` (paths are loaded; a
+    """``(forests, sources)``: category -> :class:`isa.forest.model.Forest` (paths are loaded; a
     missing file or a model without a category box is a :class:`DataError` naming it)."""
-    from isa.detection import model_box
-    from isa.forest import Forest
+    from isa.detection.category_boxes import model_box
+    from isa.forest.model import Forest
 
     if not models:
         raise DataError("no category models given")
@@ -119,11 +126,12 @@ def load_models(models: Mapping[str, Any]) -> tuple[dict, dict]:
 
 def detect_views(models: Mapping[str, Any], views: Sequence[View], params=None, progress: bool = True,
                  desc: str = "detect") -> tuple[list[list[Detection]], list[float]]:
-    """Today's detection (:func:`isa.detection.detect_frame`) on every view: per view the
+    """Today's detection (:func:`isa.detection.hypotheses.detect_frame`) on every view: per view the
     detections of all categories (6D, from the gravity-aligned boxes) and the seconds taken."""
     from types import SimpleNamespace
 
-    from isa.detection import DetectionParams, detect_frame, model_box
+    from isa.detection.category_boxes import model_box
+    from isa.detection.hypotheses import DetectionParams, detect_frame
     from isa.scenes.scoring import LEVEL_GRAVITY
 
     params = params or DetectionParams()
@@ -193,10 +201,10 @@ def scenes_section(report, name: str, views: Sequence[View], detections: Sequenc
     """Add one dataset's section to ``report`` (tables, AP over visible fraction, ``n_figures``
     frames with their ground truth and ``draw_top`` best detections per category) and put its
     numbers in ``report.results["scenes"][name]`` (also returned)."""
-    from isa.figures.scenes import scene_figure
+    from isa.data.sunrgbd import SceneFrame
+    from isa.report.figures.scenes import scene_figure
     from isa.scenes.figures import ap_by_visibility_figure
     from isa.scenes.scoring import LEVEL_GRAVITY
-    from isa.sunrgbd import SceneFrame
 
     cats = scores.categories
     data = {"n_frames": len(views), **(dict(info) if info else {}), "scores": scores.to_dict()}
@@ -272,7 +280,7 @@ def run_datasets(report, datasets: Mapping[str, Mapping[str, Any]], models: Mapp
     """Detect, score and report every dataset. ``datasets``: name -> {"kind", "source", "split",
     optional "limit", "description"}; ``models``: category -> model path or Forest. Returns what
     :func:`save_detections` stores (name -> the dataset's entry with its frames and detections)."""
-    from isa.detection import DetectionParams
+    from isa.detection.hypotheses import DetectionParams
 
     params = params or DetectionParams()
     forests, sources = load_models(models)

@@ -1,6 +1,6 @@
 """Scene benchmark pictures: AP over the objects' visible fraction (matplotlib Agg, PNG).
 
-Frames with boxes are drawn by :func:`isa.figures.scenes.scene_figure`; this module adds the
+Frames with boxes are drawn by :func:`isa.report.figures.scenes.scene_figure`; this module adds the
 plot that only the scene scores have.
 """
 

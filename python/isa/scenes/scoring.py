@@ -2,21 +2,21 @@
 
 :func:`evaluate` takes, per frame, the ground truth, the detections and the gravity rotation, and
 scores every category with four metrics, each by greedy matching in decreasing score, one
-detection per object (PASCAL VOC's rule, as :func:`isa.boxes3d.average_precision`): a detection
+detection per object (PASCAL VOC's rule, as :func:`isa.evaluation.boxes3d.average_precision`): a detection
 is matched to the ground-truth object of its frame and category it agrees with best; it is a true
 positive when the agreement passes the metric's threshold and that object is not taken yet, a
 false positive otherwise (duplicates included).
 
-- ``6d``: the paper's Eq. 14 (:func:`isa.pose_metrics.average_distance` over the instance's
+- ``6d``: the paper's Eq. 14 (:func:`isa.evaluation.pose_metrics.average_distance` over the instance's
   model points) at most ``z`` (0.1) times the diameter;
 - ``6d_sym``: the same with symmetries forgiven: the minimum of Eq. 14 over the instance's
   symmetry group (the true pose composed with each symmetry), as BOP's MSSD does for its maximum
   distance; a rectangular table turned by 180 degrees is right here and wrong under ``6d``;
-- ``box_0.25`` / ``box_0.5``: the 3D IoU (:func:`isa.boxes3d.iou_3d`) of the gravity-aligned
+- ``box_0.25`` / ``box_0.5``: the 3D IoU (:func:`isa.evaluation.boxes3d.iou_3d`) of the gravity-aligned
   boxes in the frame's upright frame, at least 0.25 (Sliding Shapes, the paper's real metric) or
   0.5.
 
-AP is the VOC 2010+ "all points" area (:func:`isa.boxes3d.voc_ap`). Objects whose visible
+AP is the VOC 2010+ "all points" area (:func:`isa.evaluation.boxes3d.voc_ap`). Objects whose visible
 fraction is below ``min_visib`` (0.3) are **ignored** ground truth, as VOC's "difficult": they do
 not count in the recall, and a detection matched to one is neither a true nor a false positive.
 Besides AP, each metric reports the recall over all detections of the objects in each visible-
@@ -26,7 +26,7 @@ errors of the true positives.
 
 Ground truth is either a pose record (anything with ``category``, ``R``, ``t``, ``size``,
 ``visib_fract``, ``symmetries``, ``points``: :class:`isa.scenes.io.GroundTruth`) or a bare
-:class:`isa.boxes3d.Box3D` in the upright frame (SUN RGB-D, no 6D truth, visible fraction unknown:
+:class:`isa.evaluation.boxes3d.Box3D` in the upright frame (SUN RGB-D, no 6D truth, visible fraction unknown:
 never ignored, in no bin); detections are :class:`Detection` (a 6D pose with a size) or bare
 ``Box3D``. The 6D metrics are ``None`` (n/a) for a category where either side lacks poses.
 Poses map object to camera, ``X_cam = R X + t``, metres; ``gravity`` is camera to upright
@@ -36,28 +36,28 @@ Poses map object to camera, ``X_cam = R X + t``, metres; ``gravity`` is camera t
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
-
-from isa.boxes3d import Box3D, box_from_pose, iou_matrix, rot_z, voc_ap
+from isa.evaluation.boxes3d import Box3D, box_from_pose, iou_matrix, rot_z, voc_ap
+from isa.evaluation.pose_metrics import average_distance, model_diameter
 from isa.exceptions import InvalidInputError, InvalidParameterError
-from isa.pose_metrics import average_distance, model_diameter
 
 __all__ = [
+    "LEVEL_GRAVITY",
+    "METRICS",
+    "MIN_VISIB",
+    "VISIB_BINS",
     "Detection",
     "MetricScore",
     "Scores",
-    "evaluate",
-    "symmetry_transforms",
-    "rotation_error_deg",
-    "ground_truth_box",
-    "LEVEL_GRAVITY",
-    "METRICS",
-    "VISIB_BINS",
-    "MIN_VISIB",
     "Z",
+    "evaluate",
+    "ground_truth_box",
+    "rotation_error_deg",
+    "symmetry_transforms",
 ]
 
 #: The metrics, in report order.
@@ -118,14 +118,14 @@ class Detection:
         object.__setattr__(self, "score", float(self.score))
 
     def box(self, gravity: np.ndarray | None = None) -> Box3D:
-        """The gravity-aligned box in the upright frame (tilt dropped, :func:`isa.boxes3d.box_from_pose`)."""
+        """The gravity-aligned box in the upright frame (tilt dropped, :func:`isa.evaluation.boxes3d.box_from_pose`)."""
         Rg = LEVEL_GRAVITY if gravity is None else gravity
         return box_from_pose(self.R, self.t, self.size, -self.box_centre, Rg, self.category, self.score)
 
     @classmethod
-    def from_box(cls, box: Box3D, gravity: np.ndarray | None = None, box_centre=(0.0, 0.0, 0.0)) -> "Detection":
+    def from_box(cls, box: Box3D, gravity: np.ndarray | None = None, box_centre=(0.0, 0.0, 0.0)) -> Detection:
         """The upright pose of a gravity-aligned box (object x axis along the box's yaw), the
-        inverse of :meth:`box`: what :func:`isa.detection.detect` reports, as a 6D detection.
+        inverse of :meth:`box`: what :func:`isa.detection.hypotheses.detect` reports, as a 6D detection.
         ``box_centre``: where the box centre is in the object frame (the category box's
         ``-ssc_offset``)."""
         Rg = LEVEL_GRAVITY if gravity is None else np.asarray(gravity, dtype=float)
@@ -140,7 +140,7 @@ class Detection:
                 "score": self.score, "box_centre": self.box_centre.tolist()}
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "Detection":
+    def from_dict(cls, d: Mapping[str, Any]) -> Detection:
         try:
             return cls(d["category"], d["R"], d["t"], d["size"], d["score"], d.get("box_centre", (0.0, 0.0, 0.0)))
         except (KeyError, TypeError) as exc:
@@ -166,7 +166,7 @@ def symmetry_transforms(symmetries: Sequence | str = (), n_continuous: int = N_C
     ``symmetry_centre``), a 4x4 or flat 16 rigid transform (translation in metres: BOP's
     ``symmetries_discrete`` once converted from mm), ``"continuous-z"`` (every turn about the
     vertical through ``centre``; alone or in a list), a BOP continuous symmetry ``{"axis": (3,),
-    "offset": (3,) metres}``, or a :class:`isa.symmetry.YawSymmetry` (turns about the vertical
+    "offset": (3,) metres}``, or a :class:`isa.privileged.symmetry.YawSymmetry` (turns about the vertical
     through its own ``centre``). Continuous ones are sampled every 360 / ``n_continuous`` degrees;
     duplicates (the identity listed again) change no minimum.
     """
