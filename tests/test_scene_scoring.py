@@ -3,30 +3,25 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 from isa.evaluation.boxes3d import Box3D, average_precision, rot_z
 from isa.exceptions import InvalidInputError, InvalidParameterError
 from isa.privileged.symmetry import YawSymmetry
+from isa.scenes.io import GroundTruth, box_points
 from isa.scenes.scoring import Detection, evaluate, symmetry_transforms
 
 SIZE = np.array([0.5, 0.5, 0.9])
 
 
-@dataclass
-class GT:
-    """A pose ground truth with the fields of isa.scenes.io.GroundTruth that the scorer reads."""
-
-    category: str
-    R: np.ndarray
-    t: np.ndarray
-    size: np.ndarray
-    visib_fract: float
-    symmetries: tuple = ()
-    points: np.ndarray | None = None
-    symmetry_centre: np.ndarray | None = None
+def GT(category, R, t, size, visib_fract, symmetries=(), points=None, symmetry_centre=None):
+    """A ground-truth record as isa.scenes.io reads it (box corners and centre without a mesh)."""
+    size = np.asarray(size, float)
+    if points is None:
+        points = box_points(-size / 2, size)
+    return GroundTruth(1, category, R, t, size, visib_fract, list(symmetries) if not isinstance(symmetries, str)
+                       else symmetries, points, np.zeros(3) if symmetry_centre is None else symmetry_centre)
 
 
 def cuboid_points(size, n=2000, seed=0, centre=(0.0, 0.0, 0.0)):
@@ -224,7 +219,6 @@ def test_bad_input_is_named():
 
 @pytest.fixture(scope="module")
 def tiny_bench(tmp_path_factory):
-    pytest.importorskip("isa.scenes.writer", reason="the rooms helper's scene writer is not merged yet")
     from isa.detection.training import train_detector
     from isa.forest.model import ForestParams
     from isa.render.dataset import procedural_objects

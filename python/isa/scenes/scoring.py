@@ -242,13 +242,6 @@ class _Candidate:
     t: np.ndarray | None = None
 
 
-def _box_points(size: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """The 8 corners and the centre of an axis-aligned box (object frame)."""
-    h = size / 2
-    corners = np.array([[x, y, z] for x in (-h[0], h[0]) for y in (-h[1], h[1]) for z in (-h[2], h[2])])
-    return np.vstack([corners + centre, centre])
-
-
 def _target(g, gravity: np.ndarray, cache: dict) -> _Target:
     if isinstance(g, Box3D):
         return _Target(g.category, g, float("nan"))
@@ -260,8 +253,10 @@ def _target(g, gravity: np.ndarray, cache: dict) -> _Target:
         pts, diam, centre = cache[key]
     else:
         if pts is None:
+            from isa.scenes.io import box_points
+
             centre = np.zeros(3)
-            pts = _box_points(size, centre)
+            pts = box_points(-size / 2, size)
         else:
             pts = np.asarray(pts, dtype=float)
             if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
