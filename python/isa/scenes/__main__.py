@@ -72,16 +72,14 @@ def add_make_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_make(a) -> None:
-    from isa.scenes import sources
-    from isa.scenes.writer import make_scenes
+    from isa.scenes import make_scenes, sources
 
     if a.source == "scan2cad":
         from isa.scenes.scan2cad import make_scan2cad_scenes
 
         if not a.scan:
             raise SystemExit("make --source scan2cad needs --scan DIR")
-        make_scenes_path = make_scan2cad_scenes(a.out, a.split, a.scan, n_views=a.views, seed=a.seed,
-                                                noise=not a.no_noise)
+        summary = make_scan2cad_scenes(a.out, a.scan, a.views, seed=a.seed, noise=not a.no_noise, split=a.split)
     else:
         if a.source == "procedural":
             src = sources.procedural(a.categories, a.seed)
@@ -91,8 +89,8 @@ def cmd_make(a) -> None:
             src = sources.modelnet_test(a.modelnet, a.categories)
         else:
             src = sources.modelnet_validation(a.modelnet, a.categories, a.validation_instances)
-        make_scenes_path = make_scenes(a.out, a.split, src, a.scenes, a.views, a.seed, noise=not a.no_noise)
-    print(f"scenes: {make_scenes_path or a.out}")
+        summary = make_scenes(a.out, a.split, src, a.scenes, a.views, a.seed, noise=not a.no_noise)
+    print(f"scenes: {a.out}/{a.split}: {summary}")
 
 
 def cmd_run(a) -> None:
