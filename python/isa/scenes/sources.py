@@ -51,6 +51,10 @@ class MeshSource:
     def count(self, category: str) -> int:
         return len(self._objects(category))
 
+    def sources(self, category: str) -> list[str]:
+        """Where each instance of ``category`` comes from (file or generator seed), unprepared."""
+        return [o.source for o in self._objects(category)]
+
     def first_obj_id(self, category: str) -> int:
         return 1 + sum(self.count(c) for c in self.categories[: self.categories.index(category)])
 
