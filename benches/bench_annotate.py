@@ -27,7 +27,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 def _objects(n: int):
     from isa import pipeline
-    from isa.dataset import procedural_objects
+    from isa.render.dataset import procedural_objects
 
     return pipeline.prepare_category("chair", procedural_objects("chair", n, seed=1))
 
@@ -35,7 +35,7 @@ def _objects(n: int):
 def worker(root: Path, n: int, stride: int, lazy: bool) -> dict:
     """Build the (mirrored) training set of ``root``; report peak RSS (MB), seconds and a digest."""
     from isa import pipeline
-    from isa.mirror import find_mirror, with_mirrored
+    from isa.privileged.mirror import find_mirror, with_mirrored
 
     train = _objects(n)
     mirrors = {o.obj_id: find_mirror(o.mesh) for o in train.objects}
@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     if a.worker:
         print(json.dumps(worker(a.root, a.objects, a.stride, a.worker == "lazy")))
         return
-    from isa.dataset import render_dataset
+    from isa.render.dataset import render_dataset
 
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)

@@ -4,7 +4,7 @@
                                     [--thresholds 0 80] [--repeats 3] [--distance 1.5 4]
                                     [--recall [--test-images 264] [--template-distance 2.2 2.8]]
 
-Builds ONE detector (isa.linemod.LinemodDetector) holding the training views of the category's
+Builds ONE detector (isa.evaluation.linemod.LinemodDetector) holding the training views of the category's
 first ``--instances`` training instances (ModelNet10 from ../shared/data, or procedural objects
 when it is absent or with ``--procedural``), renders ``--frames`` test images of unseen test
 instances from random non-training views, and prints per-frame matching time for each match
@@ -49,7 +49,7 @@ class Frame:
 
 def load_objects(category: str, n_train: int, n_test: int | None, procedural: bool, seed: int = 0):
     """(train objects, test objects, source name): ModelNet10 when present, else procedural."""
-    from isa.dataset import modelnet_objects, procedural_objects
+    from isa.render.dataset import modelnet_objects, procedural_objects
 
     mn = SHARED / "modelnet10"
     if not procedural and mn.is_dir():
@@ -63,11 +63,11 @@ def load_objects(category: str, n_train: int, n_test: int | None, procedural: bo
 
 def build_detector(objects, renderer, n_views: int = 89, seed: int = 0, distance=None, **params):
     """One LinemodDetector holding ``n_views`` training views of every object in ``objects``:
-    the dataset's training views (``isa.dataset.default_views``, 1.5-4 m), or with ``distance``
+    the dataset's training views (``isa.render.dataset.default_views``, 1.5-4 m), or with ``distance``
     (min, max) metres the same directions at distances drawn from that range."""
-    from isa.dataset import default_views, hull_points
-    from isa.linemod import LinemodDetector
-    from isa.views import training_views
+    from isa.render.dataset import default_views, hull_points
+    from isa.evaluation.linemod import LinemodDetector
+    from isa.render.views import training_views
 
     det = LinemodDetector(renderer.intrinsics, **params)
     for obj in objects:
@@ -85,8 +85,8 @@ def build_detector(objects, renderer, n_views: int = 89, seed: int = 0, distance
 def render_test_frames(objects, renderer, n: int, seed: int = 1, distance=(1.5, 4.0)) -> list[Frame]:
     """``n`` test images cycling over ``objects``, each from a random view that is not a training
     view of that object (3 degrees away at least), the whole object in the image."""
-    from isa.dataset import default_views, hull_points
-    from isa.views import sample_test_views
+    from isa.render.dataset import default_views, hull_points
+    from isa.render.views import sample_test_views
 
     per = [n // len(objects) + (i < n % len(objects)) for i in range(len(objects))]
     frames = []
@@ -110,7 +110,7 @@ def linemod_timings(detector, depths: Sequence[np.ndarray], thresholds=(0, 80), 
     match) and ``opencv_ms`` OpenCV's ``match`` alone on the ready uint16 image; each frame's time
     is its fastest of ``repeats`` runs.
     """
-    from isa.linemod import depth_to_mm
+    from isa.evaluation.linemod import depth_to_mm
 
     mms = [depth_to_mm(d) for d in depths]
     out = {}
@@ -146,7 +146,7 @@ def print_isa_ratio(model: Path, depths: Sequence[np.ndarray], intrinsics, timin
     """ISA's whole-frame inference (``Forest.predict``: parts, every tree, votes, modes) on the
     same images, each frame's fastest of ``repeats`` runs after one warm-up call, and Linemod's
     time per frame divided by it."""
-    from isa.forest import Forest
+    from isa.forest.model import Forest
 
     forest = Forest.load(model)
     forest.predict(depths[0], intrinsics)
@@ -167,11 +167,11 @@ def print_isa_ratio(model: Path, depths: Sequence[np.ndarray], intrinsics, timin
 
 def recall_protocol(train, frames, test_objects, renderer, n_views: int, z: float = 0.1, seed: int = 0, distance=None):
     """The paper's Linemod protocol on the given frames: returns (recall with Linemod's translation,
-    recall with the true translation substituted), both :class:`isa.linemod.LinemodRecall`."""
+    recall with the true translation substituted), both :class:`isa.evaluation.linemod.LinemodRecall`."""
     import trimesh
 
-    from isa.linemod import linemod_recall
-    from isa.pose_metrics import average_distance, model_diameter
+    from isa.evaluation.linemod import linemod_recall
+    from isa.evaluation.pose_metrics import average_distance, model_diameter
 
     pts = {}
     for o in test_objects:
@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     import cv2
 
     from isa.camera import KINECT_V1
-    from isa.render import DepthRenderer
+    from isa.render.renderer import DepthRenderer
 
     train, test, source = load_objects(a.category, a.instances, None, a.procedural)
     r = DepthRenderer(KINECT_V1)

@@ -45,11 +45,11 @@ def main() -> int:
 
     from isa import detection as D
     from isa.camera import KINECT_V1
-    from isa.dataset import default_test_views, procedural_objects
-    from isa.forest import Forest, ForestParams
+    from isa.render.dataset import default_test_views, procedural_objects
+    from isa.forest.model import Forest, ForestParams
     from isa.pipeline import predict
-    from isa.render import DepthRenderer
-    from isa.sunrgbd import read_processed
+    from isa.render.renderer import DepthRenderer
+    from isa.data.sunrgbd import read_processed
 
     frame = read_processed(proc, "000001")
     t0 = time.perf_counter()

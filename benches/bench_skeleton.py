@@ -59,8 +59,8 @@ def ground_truth_table(seeds=range(12)) -> None:
     extra members of ``skeleton.meta["members"]``; the template's links alone in brackets, for
     reference) and (b) how many instances have every template junction/endpoint within 10% of the
     diameter of an extracted node."""
-    from isa.procedural import generate, skeleton_segments
-    from isa.skeleton import extract_skeleton
+    from isa.data.procedural import generate, skeleton_segments
+    from isa.privileged.skeleton import extract_skeleton
 
     def seg_dist(P, A, B):
         d = B - A
@@ -98,16 +98,16 @@ def main() -> int:
         print(f"SKIP bench_skeleton: real data not found at {mn} (set ISA_SHARED_DATA or check out ../shared)")
         return 0
 
-    from isa.annotate import Frame, build_training_set
+    from isa.privileged.annotate import Frame, build_training_set
     from isa.camera import KINECT_V1
-    from isa.matching import calibrate_template, match_skeleton, template_from_ground_truth
-    from isa.meshes import prepare_mesh
-    from isa.modelnet import paper_instances
-    from isa.procedural import generate
-    from isa.render import DepthRenderer
-    from isa.skeleton import extract_skeleton
-    from isa.ssc import select_ssc
-    from isa.views import training_views
+    from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
+    from isa.data.meshes import prepare_mesh
+    from isa.data.modelnet import paper_instances
+    from isa.data.procedural import generate
+    from isa.render.renderer import DepthRenderer
+    from isa.privileged.skeleton import extract_skeleton
+    from isa.privileged.ssc import select_ssc
+    from isa.render.views import training_views
 
     rows: list[tuple[str, float, str]] = []
 
@@ -180,7 +180,7 @@ def main() -> int:
     print(f"\nall {len(ts):,} parts: {t_ann:.1f} s vectorised vs {len(ts) / loop_rate:.0f} s by the loop (extrapolated)")
 
     if a.figures is not None:
-        from isa.figures.skeletons import com_vs_ssc, depth_with_skeleton, matched_grid
+        from isa.report.figures.skeletons import com_vs_ssc, depth_with_skeleton, matched_grid
 
         names = [i.name for i in insts]
         print(matched_grid(meshes, matched, a.figures / "chair_matched_grid.png", titles=names))

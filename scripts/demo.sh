@@ -4,4 +4,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl}
-python3 -m isa.demo --out out/demo "$@"
+python3 -m isa demo --out out/demo "$@"

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from isa.annotate import (
+from isa.privileged.annotate import (
     Frame,
     angle_embedding,
     build_training_set,
@@ -20,7 +20,7 @@ from isa.annotate import (
     rotation_quaternion,
 )
 from isa.camera import KINECT_V1, Intrinsics
-from isa.skeleton_graph import SkeletonGraph
+from isa.privileged.skeleton_graph import SkeletonGraph
 
 
 def _skeleton(seed: int = 0, n: int = 7) -> SkeletonGraph:

@@ -11,7 +11,7 @@ import trimesh
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from isa import bop
+from isa.data import bop
 from isa.camera import Intrinsics
 from isa.exceptions import DataError
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from isa.boxes3d import (
+from isa.evaluation.boxes3d import (
     Box3D,
     average_precision,
     box_from_pose,

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from isa import bop
+from isa.data import bop
 from isa.camera import KINECT_V1
-from isa.dataset import ObjectSpec, default_test_views, default_views, hull_points, main, procedural_objects, render_dataset
+from isa.render.dataset import ObjectSpec, default_test_views, default_views, hull_points, main, procedural_objects, render_dataset
 from isa.exceptions import DataError
-from isa.figures.renders import bop_contact_sheet
-from isa.noise import KinectNoise
-from isa.render import DepthRenderer
-from isa.views import fit_distance, look_at, sample_test_views, training_views
+from isa.report.figures.renders import bop_contact_sheet
+from isa.render.noise import KinectNoise
+from isa.render.renderer import DepthRenderer
+from isa.render.views import fit_distance, look_at, sample_test_views, training_views
 
 
 def _dirs(views):
@@ -174,7 +174,7 @@ def test_contact_sheet(tmp_path, objects):
 
 
 def test_modelnet_chair_dataset(tmp_path, shared_data):
-    from isa.dataset import modelnet_objects
+    from isa.render.dataset import modelnet_objects
 
     objs = modelnet_objects(shared_data / "modelnet10", "chair", n=2)
     assert [o.source.rsplit("/", 1)[-1] for o in objs] == ["chair_0001.off", "chair_0002.off"]

@@ -12,10 +12,10 @@ import pytest
 import trimesh
 
 from isa import detection as D
-from isa.boxes3d import Box3D, iou_3d
+from isa.evaluation.boxes3d import Box3D, iou_3d
 from isa.camera import KINECT_V1, Intrinsics
 from isa.exceptions import DataError
-from isa.sunrgbd import UPRIGHT_FROM_CAMERA_AXES
+from isa.data.sunrgbd import UPRIGHT_FROM_CAMERA_AXES
 
 
 def rot_z(a):
@@ -170,8 +170,8 @@ def test_remove_planes_checks_its_arguments():
 @pytest.fixture(scope="module")
 def chair_model():
     """A tiny chair forest trained on renders of 3 procedural chairs (20 views each)."""
-    from isa.dataset import procedural_objects
-    from isa.forest import ForestParams
+    from isa.render.dataset import procedural_objects
+    from isa.forest.model import ForestParams
 
     objs = procedural_objects("chair", 3, seed=7)
     forest, prepared = D.train_detector(
@@ -181,10 +181,10 @@ def chair_model():
 
 
 def test_end_to_end_on_a_rendered_chair_on_a_floor(chair_model):
-    from isa.dataset import procedural_objects
+    from isa.render.dataset import procedural_objects
     from isa.pipeline import prepare_category
-    from isa.render import DepthRenderer
-    from isa.views import look_at
+    from isa.render.renderer import DepthRenderer
+    from isa.render.views import look_at
 
     forest, prepared = chair_model
     assert D.model_box(forest).category == "chair"
@@ -240,7 +240,7 @@ def test_evaluate_real_names_models_without_a_box(tmp_path):
 
 
 def test_detection_on_the_shared_real_frames(shared_data, chair_model, tmp_path):
-    from isa.report import Report
+    from isa.report.report import Report
 
     frames = D.load_real_frames(shared_data / "sunrgbd")
     assert {f.name for f in frames} == {"img_0063", "000001"}

@@ -12,8 +12,8 @@ import trimesh
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from isa import experiment  # noqa: E402
-from isa.forest import Forest  # noqa: E402
+from isa.evaluation import experiment  # noqa: E402
+from isa.forest.model import Forest  # noqa: E402
 
 
 @pytest.mark.parametrize("centre, mirror", [("box", False), ("com", True)])
@@ -40,7 +40,7 @@ def test_tiny_procedural_run_uses_the_chosen_origin(tmp_path, centre, mirror):
             np.testing.assert_allclose(mesh.bounds.mean(0), 0, atol=1e-3)
         else:
             # The solid's centre of mass, to within a voxel of the 80-voxel grid.
-            from isa.ssc import centre_of_mass
+            from isa.privileged.ssc import centre_of_mass
 
             np.testing.assert_allclose(centre_of_mass(mesh), 0, atol=mesh.extents.max() / 80 + 1e-3)
 

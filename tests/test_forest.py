@@ -20,7 +20,7 @@ from isa.exceptions import (
     IsaIOError,
     ModelFormatError,
 )
-from isa.forest import Forest, ForestParams
+from isa.forest.model import Forest, ForestParams
 
 TOY_PARAMS = dict(n_trees=3, max_depth=12, min_samples_split=4, min_samples_leaf=2, n_candidates=40,
                   max_offset=25.0, quality="Q1", vote_bandwidth_offset=0.02)
@@ -120,7 +120,7 @@ def test_determinism_rayon_num_threads_subprocess(tmp_path):
         import sys
         sys.path.insert(0, {os.path.dirname(__file__)!r})
         from test_forest import toy, privileged, TOY_PARAMS
-        from isa.forest import Forest
+        from isa.forest.model import Forest
         images, parts, off, rot = toy()
         la, no = privileged(parts)
         kw = {{**TOY_PARAMS, "quality": "Q1+Q2", "max_score_samples": 300}}

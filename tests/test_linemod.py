@@ -1,6 +1,6 @@
-"""Linemod baseline (isa.linemod): pose recovery, refused templates, the paper's protocol, errors.
+"""Linemod baseline (isa.evaluation.linemod): pose recovery, refused templates, the paper's protocol, errors.
 
-The truth is the pose each depth image was rendered with (isa.render, tested against ray casting
+The truth is the pose each depth image was rendered with (isa.render.renderer, tested against ray casting
 in test_render.py).
 """
 
@@ -13,14 +13,14 @@ import trimesh
 pytest.importorskip("cv2")
 
 from isa.camera import KINECT_V1 as K  # noqa: E402
-from isa.linemod import LinemodDetector, LinemodRecall, depth_to_mm, linemod_recall  # noqa: E402
-from isa.views import look_at  # noqa: E402
+from isa.evaluation.linemod import LinemodDetector, LinemodRecall, depth_to_mm, linemod_recall  # noqa: E402
+from isa.render.views import look_at  # noqa: E402
 
 
 # ---------------------------------------------------------------------------------- helpers
 @pytest.fixture(scope="module")
 def renderer():
-    from isa.render import DepthRenderer
+    from isa.render.renderer import DepthRenderer
 
     with DepthRenderer(K) as r:
         yield r

@@ -8,7 +8,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from isa.matching import (
+from isa.privileged.matching import (
     calibrate_template,
     match_graphs_qap,
     match_skeleton,
@@ -16,9 +16,9 @@ from isa.matching import (
     template_from_ground_truth,
     template_from_instances,
 )
-from isa.procedural import generate
-from isa.skeleton import extract_skeleton
-from isa.skeleton_graph import SkeletonGraph
+from isa.data.procedural import generate
+from isa.privileged.skeleton import extract_skeleton
+from isa.privileged.skeleton_graph import SkeletonGraph
 
 
 @pytest.fixture(scope="module")
@@ -163,8 +163,8 @@ def test_normalise_and_errors():
 def test_real_modelnet_chairs_match_sensibly(shared_data):
     # No ground truth on real meshes, so check what any person would: feet at the bottom, back top
     # at the top, seat in between, front corners in front of back corners (ModelNet front: -y).
-    from isa.meshes import prepare_mesh
-    from isa.modelnet import paper_instances
+    from isa.data.meshes import prepare_mesh
+    from isa.data.modelnet import paper_instances
 
     T = _gt_template("chair")
     ix = {n: i for i, n in enumerate(T.names)}
@@ -184,7 +184,7 @@ def test_real_modelnet_chairs_match_sensibly(shared_data):
 def test_matched_grid_figure_shows_every_node(tmp_path):
     from PIL import Image
 
-    from isa.figures.skeletons import _colours, matched_grid
+    from isa.report.figures.skeletons import _colours, matched_grid
 
     objs = [generate("chair", s) for s in range(2)]
     out = matched_grid([o.mesh for o in objs], [o.skeleton for o in objs], tmp_path / "grid.png")

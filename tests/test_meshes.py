@@ -8,7 +8,7 @@ import trimesh
 
 from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, SIZES, check_category
 from isa.exceptions import DataError
-from isa.meshes import MESH_EXTENSIONS, load_mesh, object_origin, prepare_mesh, real_size_scale, rescale_to_real_size
+from isa.data.meshes import MESH_EXTENSIONS, load_mesh, object_origin, prepare_mesh, real_size_scale, rescale_to_real_size
 
 
 def _box(extents=(1.0, 2.0, 3.0), offset=(0.5, -1.0, 2.0)) -> trimesh.Trimesh:

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from isa.bop import BopFrame
+from isa.data.bop import BopFrame
 from isa.camera import KINECT_V1
 from isa.exceptions import InvalidParameterError
-from isa.mirror import find_mirror, mirrored_frame, with_mirrored
-from isa.procedural import generate
-from isa.render import render_depth
-from isa.views import look_at
+from isa.privileged.mirror import find_mirror, mirrored_frame, with_mirrored
+from isa.data.procedural import generate
+from isa.render.renderer import render_depth
+from isa.render.views import look_at
 
 
 @pytest.fixture(scope="module")

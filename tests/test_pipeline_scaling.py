@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from isa import pipeline
-from isa.annotate import TrainingSet
+from isa.privileged.annotate import TrainingSet
 from isa.exceptions import DataError
 
 
@@ -49,7 +49,7 @@ def test_predict_reads_the_models_defaults_and_explicit_parameters_win():
 
     from isa import _core
     from isa.camera import Intrinsics
-    from isa.forest import Forest, ForestParams
+    from isa.forest.model import Forest, ForestParams
 
     images, parts, offsets, rotations = plate_training_set()
     f = Forest(ForestParams(n_trees=2, max_depth=10, n_candidates=30, max_offset=60.0, quality="Q1"))

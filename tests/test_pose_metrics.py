@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from isa.pose_metrics import (
+from isa.evaluation.pose_metrics import (
     average_distance,
     is_correct,
     model_diameter,
@@ -66,7 +66,7 @@ def test_diameter_of_a_box_is_its_diagonal():
 def test_model_points_diameter_of_a_mesh_box():
     import trimesh
 
-    from isa.pose_metrics import model_points
+    from isa.evaluation.pose_metrics import model_points
 
     box = trimesh.creation.box(extents=[0.4, 0.5, 1.2])
     X = model_points(box, 500, seed=1)

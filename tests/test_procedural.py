@@ -10,8 +10,8 @@ from scipy.spatial import cKDTree
 
 from isa.categories import CATEGORIES, SIZES
 from isa.exceptions import DataError
-from isa.procedural import SKELETON_TEMPLATES, generate, generate_many, template
-from isa.skeleton import voxelize_solid
+from isa.data.procedural import SKELETON_TEMPLATES, generate, generate_many, template
+from isa.privileged.skeleton import voxelize_solid
 
 N = 24  # instances per category checked
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from isa.categories import CATEGORIES
-from isa.published import DETECTION_AP, POSE_RECALL, PRINTED_MEANS, mean, table_rows
+from isa.evaluation.published import DETECTION_AP, POSE_RECALL, PRINTED_MEANS, mean, table_rows
 
 
 def test_printed_means_recompute():

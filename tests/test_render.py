@@ -9,10 +9,10 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from isa.camera import KINECT_V1, Intrinsics
-from isa.noise import KinectNoise, apply_kinect_noise
-from isa.procedural import generate
-from isa.render import DepthRenderer
-from isa.views import training_views
+from isa.render.noise import KinectNoise, apply_kinect_noise
+from isa.data.procedural import generate
+from isa.render.renderer import DepthRenderer
+from isa.render.views import training_views
 
 ODD = Intrinsics(fx=301.7, fy=298.2, cx=171.3, cy=112.8, width=333, height=241)  # not Kinect, odd size
 
@@ -131,7 +131,7 @@ def test_backprojection_lands_on_procedural_surface(kinect):
 
 
 def test_backprojection_lands_on_modelnet_chair(kinect, shared_data):
-    from isa.meshes import prepare_mesh
+    from isa.data.meshes import prepare_mesh
 
     mesh, _ = prepare_mesh(shared_data / "modelnet10" / "ModelNet10" / "chair" / "train" / "chair_0001.off", "chair", 0)
     views = training_views(89, seed=0)

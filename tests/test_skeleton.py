@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from isa.procedural import generate, skeleton_segments
-from isa.skeleton import extract_skeleton, solid_centre_of_mass, voxelize_solid
+from isa.data.procedural import generate, skeleton_segments
+from isa.privileged.skeleton import extract_skeleton, solid_centre_of_mass, voxelize_solid
 
 
 def _bar(p0, p1, r=0.02) -> trimesh.Trimesh:
@@ -134,7 +134,7 @@ def _gt_scores(category: str, seeds, keep=None):
 
 
 # Issue #3's claims against the procedural ground truth (medial template nodes and extra members,
-# see isa.procedural): (a) the extracted nodes lie within 5% of the diameter of the true skeleton
+# see isa.data.procedural): (a) the extracted nodes lie within 5% of the diameter of the true skeleton
 # on average, (b) every true junction/endpoint of the template has an extracted node within 10%.
 # Numbers in the comments (python benches/bench_skeleton.py): seeds 0-11 (the tests run 0-5) and
 # held-out seeds 50-57; mean (a) / instances meeting (b) / worst key point.

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from isa.matching import template_from_ground_truth
-from isa.procedural import generate
-from isa.skeleton_graph import SkeletonGraph
-from isa.ssc import SSC, CategorySSC, centre_of_mass, fit_category_ssc, select_ssc
+from isa.privileged.matching import template_from_ground_truth
+from isa.data.procedural import generate
+from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.privileged.ssc import SSC, CategorySSC, centre_of_mass, fit_category_ssc, select_ssc
 
 
 def _instances(nearest: list[int], n_nodes: int = 5, seed: int = 0, unmatched=None):
@@ -116,7 +116,7 @@ def test_box_centre_origin(tmp_path):
 
 
 def test_prepare_category_moves_the_chosen_origin_to_zero():
-    from isa.dataset import procedural_objects
+    from isa.render.dataset import procedural_objects
     from isa.pipeline import prepare_category
 
     objs = procedural_objects("toilet", 3, seed=5)

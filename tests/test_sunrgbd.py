@@ -12,9 +12,9 @@ import pytest
 from PIL import Image
 from scipy.io import loadmat, savemat
 
-from isa.boxes3d import Box3D
+from isa.evaluation.boxes3d import Box3D
 from isa.exceptions import DataError
-from isa.sunrgbd import (
+from isa.data.sunrgbd import (
     UPRIGHT_FROM_CAMERA_AXES,
     decode_sun_depth,
     list_native,

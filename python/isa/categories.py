@@ -1,7 +1,7 @@
 """Object categories of the paper, their real-world sizes and the paper's training protocol.
 
 ModelNet10 meshes come in arbitrary units, so every instance is rescaled to a real size (see
-``isa.meshes.rescale_to_real_size``). The ranges below are what a depth camera sees in real rooms;
+``isa.data.meshes.rescale_to_real_size``). The ranges below are what a depth camera sees in real rooms;
 they are deliberately wide enough to cover a category's sub-types (e.g. coffee and dining tables)
 and are taken from furniture and sanitary-ware standards and the ergonomics literature:
 
@@ -78,8 +78,8 @@ def size_range(category: str) -> SizeRange:
     return SIZES[check_category(category)]
 
 
-#: Object-frame origin per category (:data:`isa.ssc.CENTRES`): the paper's SSC, or the solid's
+#: Object-frame origin per category (:data:`isa.privileged.ssc.CENTRES`): the paper's SSC, or the solid's
 #: centre of mass where the forest predicts that better on unseen instances. Chosen on the
-#: validation instances (``python -m isa.experiment --validation --centre ...``), never on test
+#: validation instances (``python -m isa experiment --validation --centre ...``), never on test
 #: instances; docs/experiments.md has the numbers.
 CENTRE: dict[str, str] = {"bed": "com", "chair": "com", "table": "ssc", "toilet": "com"}

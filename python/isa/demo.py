@@ -1,11 +1,11 @@
 """The demo: the whole ISA pipeline on procedural furniture that the project generates itself.
 
-Generates beds, chairs, tables and toilets (isa.procedural), extracts and matches their skeletons,
+Generates beds, chairs, tables and toilets (isa.data.procedural), extracts and matches their skeletons,
 finds each category's SSC, renders training and test depth images (BOP format), trains a Q1 and a
 Q1+Q2+Q3 forest per category, predicts the 6D pose of unseen instances, runs the Linemod
 baseline, and writes ``<out>/report.md`` with pictures and ``<out>/results.json``.
 
-A small version of ``python -m isa.experiment`` (same code), sized to run in minutes on 2 cores.
+A small version of ``python -m isa experiment`` (same code), sized to run in minutes on 2 cores.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 
 from isa.categories import CATEGORIES
-from isa.experiment import ExperimentConfig, run
-from isa.forest import ForestParams
+from isa.evaluation.experiment import ExperimentConfig, run
+from isa.forest.model import ForestParams
 
 
 #: Real SUN RGB-D frames, when the developers' shared data sits beside the checkout: the demo then
@@ -33,7 +33,7 @@ def demo_config(seed: int = 0, categories=CATEGORIES, real: str | None = None) -
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m isa.demo", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m isa demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--categories", nargs="+", default=list(CATEGORIES), choices=CATEGORIES)

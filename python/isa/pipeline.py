@@ -17,18 +17,28 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
-from isa import bop
-from isa.annotate import Frame, TrainingSet, build_training_set, quaternion_to_matrix
-from isa.camera import KINECT_V1, Intrinsics
+from isa.data import bop
+from isa.camera import Intrinsics
 from isa.categories import CENTRE
-from isa.dataset import ObjectSpec, procedural_objects, render_dataset
+from isa.render.dataset import ObjectSpec, procedural_objects
 from isa.exceptions import DataError
-from isa.forest import Forest, ForestParams
-from isa.matching import calibrate_template, match_skeleton, template_from_ground_truth
-from isa.pose_metrics import average_distance, model_diameter, model_points, symmetric_average_distance
-from isa.skeleton import extract_skeleton
-from isa.skeleton_graph import SkeletonGraph
-from isa.ssc import CategorySSC, centre_of_mass, select_ssc
+from isa.forest.model import Forest
+from isa.forest.training import (  # noqa: F401  (re-exported: the pipeline's training steps)
+    PROBE_REACH,
+    VOTE_BANDWIDTH,
+    load_frames,
+    parts_diameter,
+    scaled_max_offset,
+    scaled_params,
+    scaled_predict_defaults,
+    train_forest,
+    training_set,
+)
+from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
+from isa.evaluation.pose_metrics import average_distance, model_diameter, model_points, symmetric_average_distance
+from isa.privileged.skeleton import extract_skeleton
+from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.privileged.ssc import CategorySSC, centre_of_mass, select_ssc
 
 #: Procedural instances whose ground-truth skeletons define a category's template (fixed seed, so
 #: every run and every user gets the same template).
@@ -99,7 +109,7 @@ def prepare_category(
 
     ``use_ground_truth``: procedural objects use their true skeletons instead of extraction.
     ``tie_tolerance``: nodes within this many votes of the most repetitive one share the SSC
-    (:func:`isa.ssc.select_ssc`). ``centre``: ``"ssc"``, ``"com"`` or ``"box"`` (:data:`isa.ssc.CENTRES`),
+    (:func:`isa.privileged.ssc.select_ssc`). ``centre``: ``"ssc"``, ``"com"`` or ``"box"`` (:data:`isa.privileged.ssc.CENTRES`),
     default the category's :data:`isa.categories.CENTRE`; ignored when ``ssc`` is given (it has one).
     """
     if not objects:
@@ -130,74 +140,6 @@ def save_skeletons(path: Path, prepared: PreparedCategory) -> None:
     bop.write_json(path, data)
 
 
-def load_frames(root: Path, split: str, lazy: bool = False) -> list[bop.BopFrame] | bop.FrameSequence:
-    """Every frame of a BOP split, in scene then image order; with ``lazy``, a
-    :class:`isa.bop.FrameSequence` that reads each frame when it is used (for training sets too
-    large to hold: 6,052 views at 640x480 take 9.3 GB in memory)."""
-    frames = bop.FrameSequence(root, split)
-    if len(frames) == 0:
-        raise DataError(f"{root}/{split}: no frames")
-    return frames if lazy else list(frames)
-
-
-def training_set(frames: Sequence[bop.BopFrame], skeletons: dict[int, SkeletonGraph], stride: int = 4,
-                 progress: bool = True) -> TrainingSet:
-    """Annotated parts of rendered training frames (the forest's input); the frames are read
-    once, one at a time, so a lazy sequence keeps only their crops in memory."""
-    bar = tqdm(frames, desc="annotate", unit="frame", disable=not progress, leave=False)
-    fs = (Frame(f.depth, f.mask, f.R, f.t, f.intrinsics, skeletons[f.obj_id]) for f in bar)
-    return build_training_set(fs, stride=stride)
-
-
-#: Scale-aware settings, as fractions of the objects' diameter (estimated from the training parts,
-#: :func:`parts_diameter`), so large categories (tables, beds) get probes and kernels that fit them.
-#: Chosen on held-out ModelNet *training* instances (``python -m isa.experiment --validation``),
-#: never on test instances: table recall rose from 5% (probes fixed at 150 px·m = 0.26 m) to 21%
-#: at 400 px·m (0.34 of its 2 m diameter) and 35% at 800 px·m (0.68); see docs/experiments.md.
-PROBE_REACH = 0.7
-#: Position kernel radius of the Hough voting at inference (default 0.08 m suits a 1 m chair).
-VOTE_BANDWIDTH = 0.09
-
-
-def parts_diameter(ts: TrainingSet) -> float:
-    """The objects' diameter as the training parts see it: twice the 95th percentile of the
-    parts' distance to the SSC (metres)."""
-    if len(ts) == 0:
-        raise DataError("parts_diameter: the training set has no parts")
-    return float(2 * np.percentile(np.linalg.norm(ts.offsets, axis=1), 95))
-
-
-def scaled_max_offset(ts: TrainingSet, fx: float) -> float:
-    """``ForestParams.max_offset`` (pixel·metres) reaching :data:`PROBE_REACH` of the objects'
-    diameter, for a camera of focal length ``fx`` pixels; clipped to [50, 2000]."""
-    return float(np.clip(PROBE_REACH * parts_diameter(ts) * fx, 50.0, 2000.0))
-
-
-def scaled_params(params: ForestParams, ts: TrainingSet, fx: float) -> ForestParams:
-    """``params`` with ``max_offset`` scaled to the objects' size (:func:`scaled_max_offset`)."""
-    return replace(params, max_offset=scaled_max_offset(ts, fx))
-
-
-def scaled_predict_defaults(ts: TrainingSet) -> dict:
-    """Inference defaults stored in a model's metadata (``predict_defaults``), read by :meth:`isa.forest.Forest.predict`."""
-    return {"position_bandwidth": round(VOTE_BANDWIDTH * parts_diameter(ts), 4)}
-
-
-def train_forest(ts: TrainingSet, params: ForestParams, metadata: dict | None = None, progress: bool = True) -> Forest:
-    """Fit a forest on a training set; ``metadata`` (category, SSC, ...) goes into the model file,
-    with size-aware inference defaults (``predict_defaults``, see :func:`scaled_predict_defaults`)
-    unless it has its own."""
-    forest = Forest(params)
-    arrays = ts.arrays()
-    if params.quality == "Q1":
-        arrays["link_angles"] = None
-        arrays["node_offsets"] = None
-    metadata = dict(metadata or {})
-    metadata.setdefault("predict_defaults", scaled_predict_defaults(ts))
-    forest.fit(**arrays, metadata=metadata, progress=progress)
-    return forest
-
-
 @dataclass
 class Evaluation:
     """Per test frame: the top hypothesis and its SSC average distance."""
@@ -220,7 +162,7 @@ class Evaluation:
 
 
 def predict(forest: Forest, depth: np.ndarray, intrinsics: Intrinsics, **params) -> list[dict]:
-    """Ranked 6D hypotheses for a whole depth image: :meth:`isa.forest.Forest.predict`."""
+    """Ranked 6D hypotheses for a whole depth image: :meth:`isa.forest.model.Forest.predict`."""
     return forest.predict(depth, intrinsics, **params)
 
 

@@ -1,6 +1,6 @@
 """Gravity-aligned oriented 3D boxes, their exact 3D IoU, and 3D detection average precision.
 
-Frame: every box lives in the **upright frame** of a depth frame (see :mod:`isa.sunrgbd`): origin at
+Frame: every box lives in the **upright frame** of a depth frame (see :mod:`isa.data.sunrgbd`): origin at
 the camera centre, ``z`` up (against gravity), ``x`` and ``y`` horizontal with ``y`` the camera's
 viewing direction projected on the floor and ``x`` to its right. This is SUN RGB-D's "upright
 depth" frame, the one Sliding Shapes, Deep Sliding Shapes, VoteNet and mmdetection3d use.

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from isa.camera import Intrinsics
-from isa.skeleton_graph import SkeletonGraph
+from isa.privileged.skeleton_graph import SkeletonGraph
 
 
 # ---------------------------------------------------------------------------------------------
@@ -152,7 +152,7 @@ class Frame:
 
 @dataclass
 class TrainingSet:
-    """The DESIGN.md contract (see ``isa.forest``), plus where each crop came from.
+    """The DESIGN.md contract (see ``isa.forest.model``), plus where each crop came from.
 
     ``crops`` (F, 2) int: the (u0, v0) of each crop in its full image, so full-image pixel =
     crop pixel + crop origin.
@@ -212,7 +212,7 @@ def build_training_set(
     ``a`` (default: the skeleton's links between selected nodes).
 
     ``frames`` is read once, in order, and only each frame's crop is kept, so it may be a
-    generator over views read from disk (:class:`isa.bop.FrameSequence`). Every frame's skeleton
+    generator over views read from disk (:class:`isa.data.bop.FrameSequence`). Every frame's skeleton
     must have the same nodes count and links (one category template).
     """
     if int(stride) < 1:

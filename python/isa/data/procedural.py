@@ -5,7 +5,7 @@ The project's embedded data: it needs no download, serves the demo and the tests
 
 Every object is built from simple watertight parts (boxes, struts, lofted superellipses), in the
 object frame of docs/DESIGN.md: metres, z up, the front facing -y (as in ModelNet10: chair backs,
-bed headboards and toilet tanks at +y), origin at :func:`isa.meshes.object_origin` (the bounding-box
+bed headboards and toilet tanks at +y), origin at :func:`isa.data.meshes.object_origin` (the bounding-box
 centre). "left" means -x, "right" +x (the viewer's left/right when facing the object's front).
 
 Intra-class variation is real: proportions are drawn from the real-world ranges of
@@ -50,8 +50,8 @@ import numpy as np
 import trimesh
 
 from isa.categories import CATEGORIES, check_category
-from isa.meshes import object_origin
-from isa.skeleton_graph import SkeletonGraph
+from isa.data.meshes import object_origin
+from isa.privileged.skeleton_graph import SkeletonGraph
 
 # ---------------------------------------------------------------------------------------------
 # Skeleton templates (the same for every instance of a category)

@@ -5,7 +5,7 @@ one forest per quality (Q1, Q1+Q2, Q1+Q3, Q1+Q2+Q3) -> top hypothesis on test im
 instances -> recall of the SSC average-distance metric at z = 0.1 and over z; optionally the
 Linemod baseline (one detector per training instance: min / max / mean recall).
 
-``python -m isa.experiment --modelnet ../shared/data/modelnet10 --out out/paper`` runs the paper's
+``python -m isa experiment --modelnet ../shared/data/modelnet10 --out out/paper`` runs the paper's
 protocol; ``--procedural`` runs on generated instances (what the demo uses). The numbers also go
 to ``results.json`` beside the report (schema: ``docs/results.md``).
 """
@@ -20,23 +20,21 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from isa import __version__, pipeline  # noqa: E402
-from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, check_category  # noqa: E402
-from isa.exceptions import DataError  # noqa: E402
-from isa.bop import frame_obj_ids  # noqa: E402
-from isa.mirror import find_mirror, with_mirrored  # noqa: E402
-from isa.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling  # noqa: E402
-from isa.modelnet import paper_instances  # noqa: E402
-from isa.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset  # noqa: E402
-from isa.forest import QUALITIES, ForestParams  # noqa: E402
-from isa.pose_metrics import average_distance, model_points, recall_curve  # noqa: E402
-from isa.published import POSE_RECALL  # noqa: E402
-from isa.report import Report  # noqa: E402
-from isa.ssc import CENTRES  # noqa: E402
+from isa import __version__, pipeline
+from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, check_category
+from isa.exceptions import DataError
+from isa.data.bop import frame_obj_ids
+from isa.privileged.mirror import find_mirror, with_mirrored
+from isa.privileged.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling
+from isa.data.modelnet import paper_instances
+from isa.render.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset
+from isa.forest.model import QUALITIES, ForestParams
+from isa.evaluation.pose_metrics import average_distance, model_points, recall_curve
+from isa.evaluation.published import POSE_RECALL
+from isa.report.report import Report
+from isa.privileged.ssc import CENTRES
 
 PAPER_TEST_IMAGES = 264
 #: Our quality names -> the paper's row names in Table 2 (left).
@@ -62,10 +60,10 @@ class ExperimentConfig:
     real: str | None = None  # SUN RGB-D folder: add the real-data detection section (Table 2 right)
     validation: bool = False  # ModelNet: test on held-out train-split instances (for tuning), not the test split
     ssc_tie_tolerance: int = 0  # nodes within this many votes of the top one share the SSC
-    centre: str | None = None  # object-frame origin, isa.ssc.CENTRES; None: isa.categories.CENTRE
+    centre: str | None = None  # object-frame origin, isa.privileged.ssc.CENTRES; None: isa.categories.CENTRE
     max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
-    mirror: bool = False  # add the mirrored copy of every training view of a mirror-symmetric instance (isa.mirror)
-    canonical: bool = False  # label training views of turn-symmetric instances with one canonical pose (isa.symmetry)
+    mirror: bool = False  # add the mirrored copy of every training view of a mirror-symmetric instance (isa.privileged.mirror)
+    canonical: bool = False  # label training views of turn-symmetric instances with one canonical pose (isa.privileged.symmetry)
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
 
@@ -174,8 +172,8 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
 
 def _symmetry_ceiling(objects, test_frames, pts) -> dict:
     """Each test instance's turn symmetry and the best recall at z = 0.1 that any estimator blind
-    to it can expect on these test images (isa.symmetry.recall_ceiling)."""
-    from isa.pose_metrics import model_diameter
+    to it can expect on these test images (isa.privileged.symmetry.recall_ceiling)."""
+    from isa.evaluation.pose_metrics import model_diameter
 
     syms = {o.obj_id: find_yaw_symmetry(o.mesh) for o in objects}
     ceil = {k: recall_ceiling(pts[k], s, model_diameter(pts[k])) for k, s in syms.items()}
@@ -184,8 +182,8 @@ def _symmetry_ceiling(objects, test_frames, pts) -> dict:
 
 
 def _linemod(cfg, category, train, train_frames, test_frames, pts) -> dict:
-    from isa.linemod import LinemodDetector, linemod_recall
-    from isa.pose_metrics import model_diameter
+    from isa.evaluation.linemod import LinemodDetector, linemod_recall
+    from isa.evaluation.pose_metrics import model_diameter
 
     diam = {k: model_diameter(p) for k, p in pts.items()}
 
@@ -221,9 +219,9 @@ def _linemod(cfg, category, train, train_frames, test_frames, pts) -> dict:
 
 
 def _category_figures(cfg, category, out, report, train, train_frames, test_frames, evals, pts, res) -> None:
-    from isa.figures.poses import hypotheses_sheet, recall_curves
-    from isa.figures.renders import contact_sheet
-    from isa.figures.skeletons import com_vs_ssc, depth_with_skeleton, matched_grid
+    from isa.report.figures.poses import hypotheses_sheet, recall_curves
+    from isa.report.figures.renders import contact_sheet
+    from isa.report.figures.skeletons import com_vs_ssc, depth_with_skeleton, matched_grid
 
     report.heading(category.capitalize(), 2)
     report.text(f"{len(train.objects)} training instances x {cfg.views} views = {res['train_images']} images, "
@@ -286,7 +284,7 @@ def summary_tables(report: Report, results: dict, cfg: ExperimentConfig) -> None
                 "rectangular table, 180 degrees) renders the same depth image in each pose of its turn group, so "
                 "an estimator that sees only the image is right, under this metric, on at most the share of the "
                 "group within the threshold (1/2 for such a table); the row averages that over the test images "
-                "(isa.symmetry).")
+                "(isa.privileged.symmetry).")
     report.text("The same top hypotheses scored with ADD-S, which forgives poses that a symmetry of the "
                 "model makes look the same (a rectangular table turned by 180 degrees); the paper reports "
                 "only the metric above.")
@@ -308,7 +306,7 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
     for c in cfg.categories:
         results["categories"][c] = run_category(cfg, c, out, body)
     results["seconds"] = time.perf_counter() - t_all
-    src = f"ModelNet10 at `{cfg.modelnet}`" if cfg.modelnet else "procedural instances (isa.procedural)"
+    src = f"ModelNet10 at `{cfg.modelnet}`" if cfg.modelnet else "procedural instances (isa.data.procedural)"
     report.text(f"Data: {src}. Recall (%) of the top hypothesis under the SSC average-distance metric at "
                 f"z = 0.1 (Eq. 14-15); in brackets the paper's Table 2 (left). Total run time "
                 f"{results['seconds'] / 60:.1f} min on {os.cpu_count()} cores.")
@@ -316,7 +314,7 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
     if cfg.linemod:
         report.text("Linemod: OpenCV's depth-only `cv2.linemod`, one detector per training instance holding its "
                     "views; the pose is the best template's rotation with the translation from the matched "
-                    "position and the test depth (see `isa.linemod`), scored by the same metric; the rows marked "
+                    "position and the test depth (see `isa.evaluation.linemod`), scored by the same metric; the rows marked "
                     "'true t' score Linemod's rotation with the true translation, the reading closest to the paper's "
                     "Linemod numbers. Templates come from the same 1.5-4 m training views as ISA's.")
     report.blocks += body.blocks[1:]
@@ -347,7 +345,7 @@ def _config_dict(cfg: ExperimentConfig) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m isa.experiment", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m isa experiment", description=__doc__.split("\n\n")[0])
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--modelnet", metavar="ROOT", help="ModelNet10 root (the paper's protocol)")
     src.add_argument("--procedural", action="store_true", help="generated instances instead of ModelNet")
@@ -377,10 +375,10 @@ def parser() -> argparse.ArgumentParser:
                         "isa.categories.CENTRE)")
     p.add_argument("--mirror", action="store_true",
                    help="also train on every view flipped left to right, for instances that are mirror-symmetric "
-                        "(isa.mirror): twice the views, no extra rendering")
+                        "(isa.privileged.mirror): twice the views, no extra rendering")
     p.add_argument("--canonical", action="store_true",
                    help="label the training views of instances that a turn about the vertical axis maps onto "
-                        "themselves (isa.symmetry) with one canonical pose of the turn group")
+                        "themselves (isa.privileged.symmetry) with one canonical pose of the turn group")
     p.add_argument("--seed", type=int, default=0)
     return p
 

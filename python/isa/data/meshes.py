@@ -52,7 +52,7 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
 def object_origin(mesh: trimesh.Trimesh) -> np.ndarray:
     """The object-frame origin of ``mesh`` in its own coordinates: the axis-aligned bounding-box centre.
 
-    This is the single place that defines the origin; ``isa.ssc`` replaces it with the
+    This is the single place that defines the origin; ``isa.privileged.ssc`` replaces it with the
     Semantically Selected Center.
     """
     lo, hi = mesh.bounds

@@ -78,11 +78,11 @@ def _cv2():
         import cv2
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError(
-            "isa.linemod needs OpenCV's contrib modules: pip install opencv-contrib-python-headless"
+            "isa.evaluation.linemod needs OpenCV's contrib modules: pip install opencv-contrib-python-headless"
         ) from e
     if not hasattr(cv2, "linemod"):  # pragma: no cover
         raise ImportError(
-            "isa.linemod: this OpenCV build has no cv2.linemod (install opencv-contrib-python-headless, "
+            "isa.evaluation.linemod: this OpenCV build has no cv2.linemod (install opencv-contrib-python-headless, "
             "not opencv-python)"
         )
     return cv2

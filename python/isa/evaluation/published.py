@@ -3,11 +3,11 @@
 Transcribed from ``../shared/paper/isa-category-level-6d-pose.tex``, table ``tab:result``:
 
 * left, :data:`POSE_RECALL`: 6D pose recall (%) on the synthetic ModelNet10 test renders with the
-  SSC average-distance metric (paper Eq. 14-15; ``isa.pose_metrics``): ISA with the quality
+  SSC average-distance metric (paper Eq. 14-15; ``isa.evaluation.pose_metrics``): ISA with the quality
   functions Q1, Q1&Q2, Q1&Q3, Q1&Q2&Q3, and Linemod run with the templates of each training
   instance (min / max / mean recall over those instances);
 * right, :data:`DETECTION_AP`: 3D detection average precision (%) on the RMRC 2014 (NYU Depth v2)
-  real depth frames with the Sliding Shapes metric (3D IoU >= 0.25; ``isa.boxes3d``), all methods
+  real depth frames with the Sliding Shapes metric (3D IoU >= 0.25; ``isa.evaluation.boxes3d``), all methods
   on depth only: Sliding Shapes [Song & Xiao, ECCV 2014], Gupta et al. [CVPR 2015] on instance
   segmentation and on the estimated model, Deep Sliding Shapes [Song & Xiao, CVPR 2016], ISA.
 

@@ -38,7 +38,7 @@ import trimesh
 from scipy import ndimage as ndi
 from skimage.morphology import skeletonize
 
-from isa.skeleton_graph import SkeletonGraph
+from isa.privileged.skeleton_graph import SkeletonGraph
 
 # 26-neighbourhood offsets (without the centre).
 _OFFSETS = np.array(

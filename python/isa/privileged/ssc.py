@@ -11,7 +11,7 @@ The paper's procedure, per category:
 
 The SSC is then a fixed convex combination of template nodes, ``weights @ matched.nodes``, so it
 is defined on every instance, seen or unseen, as soon as its skeleton is matched. It replaces the
-bounding-box centre of :func:`isa.meshes.object_origin`: :meth:`CategorySSC.origin` is the drop-in
+bounding-box centre of :func:`isa.data.meshes.object_origin`: :meth:`CategorySSC.origin` is the drop-in
 (``mesh -> (3,) point in the mesh's coordinates``).
 """
 
@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from isa.matching import match_skeleton
-from isa.skeleton import extract_skeleton, solid_centre_of_mass
-from isa.skeleton_graph import SkeletonGraph
+from isa.privileged.matching import match_skeleton
+from isa.privileged.skeleton import extract_skeleton, solid_centre_of_mass
+from isa.privileged.skeleton_graph import SkeletonGraph
 
 
 def centre_of_mass(mesh: trimesh.Trimesh, resolution: int = 80, seed: int = 0) -> np.ndarray:
@@ -150,7 +150,7 @@ class CategorySSC:
         return self.ssc.point(matched)
 
     def origin(self, mesh: trimesh.Trimesh) -> np.ndarray:
-        """Drop-in for :func:`isa.meshes.object_origin`: the origin of ``mesh`` in its coordinates."""
+        """Drop-in for :func:`isa.data.meshes.object_origin`: the origin of ``mesh`` in its coordinates."""
         if self.centre == "box":
             return self.origin_of(None, mesh.bounds, None)
         if self.centre == "com":

@@ -141,7 +141,7 @@ def depth_with_skeleton(
 ) -> Path:
     """Depth renders (metres, 0 = none) with the skeleton projected over them: links white,
     nodes coloured by template index (the paper's Fig. 2). ``poses``: (R, t) per image."""
-    from isa.annotate import project_skeleton
+    from isa.privileged.annotate import project_skeleton
 
     n = len(depths)
     if n == 0 or len(skeletons) != n or len(poses) != n:

@@ -1,8 +1,8 @@
 """Real scenes: 3D boxes drawn over the depth image and in a top view (matplotlib Agg, PNG).
 
 Ground truth is drawn in red and predictions in green (the paper's colours); predictions are
-labelled with their score. Frames are :class:`isa.sunrgbd.SceneFrame`, boxes
-:class:`isa.boxes3d.Box3D` in the frame's upright coordinates.
+labelled with their score. Frames are :class:`isa.data.sunrgbd.SceneFrame`, boxes
+:class:`isa.evaluation.boxes3d.Box3D` in the frame's upright coordinates.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from isa.boxes3d import Box3D
+from isa.evaluation.boxes3d import Box3D
 
 __all__ = ["box_edges_image", "draw_depth_boxes", "draw_top_view", "scene_figure", "GT_COLOR", "PRED_COLOR"]
 

@@ -1,6 +1,6 @@
 """Graph matching of raw skeletons to a category template: node i = the same place on every instance.
 
-A raw skeleton (from :func:`isa.skeleton.extract_skeleton`) has as many nodes as its mesh's
+A raw skeleton (from :func:`isa.privileged.skeleton.extract_skeleton`) has as many nodes as its mesh's
 thinning happened to give. The forest's privileged data needs *one* topology per category, so every
 instance is given the template's nodes and links, each template node placed on the instance.
 
@@ -34,7 +34,7 @@ from scipy.optimize import linear_sum_assignment, quadratic_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 
-from isa.skeleton_graph import SkeletonGraph
+from isa.privileged.skeleton_graph import SkeletonGraph
 
 
 def _bounds(bounds) -> np.ndarray:

@@ -28,10 +28,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from isa import bop
-from isa.boxes3d import rot_z
+from isa.data import bop
+from isa.evaluation.boxes3d import rot_z
 from isa.exceptions import InvalidParameterError
-from isa.mirror import SYMMETRY_TOLERANCE
+from isa.privileged.mirror import SYMMETRY_TOLERANCE
 
 #: Orders of discrete turn groups that are tested, largest first (C6 before C3 and C2, ...).
 ORDERS = (6, 4, 3, 2)
@@ -69,7 +69,7 @@ def find_yaw_symmetry(mesh: trimesh.Trimesh, tolerance: float = SYMMETRY_TOLERAN
 
     The axis goes through the surface's area centroid (which every symmetry of the surface keeps).
     A turn counts when the mean distance from the turned surface samples to the surface is below
-    ``tolerance`` of the diameter (the same test and tolerance as :func:`isa.mirror.find_mirror`).
+    ``tolerance`` of the diameter (the same test and tolerance as :func:`isa.privileged.mirror.find_mirror`).
     """
     if not (0 < tolerance < 1):
         raise InvalidParameterError(f"tolerance must be in (0, 1), got {tolerance}")
@@ -164,7 +164,7 @@ def common_subgroup(symmetries: dict[int, YawSymmetry]) -> dict[int, YawSymmetry
 def canonical_frames(frames: Sequence[bop.BopFrame], symmetries: dict[int, YawSymmetry | None]) -> bop.MappedFrames:
     """``frames`` with the poses of symmetric instances replaced by their canonical ones (the
     depth images stay; the projected skeleton follows the pose, so its nodes swap with the turn).
-    Relabelled when read (:class:`isa.bop.MappedFrames`)."""
+    Relabelled when read (:class:`isa.data.bop.MappedFrames`)."""
     items: list = []
     for i, o in enumerate(bop.frame_obj_ids(frames)):
         sym = symmetries.get(o)

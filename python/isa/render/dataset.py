@@ -2,13 +2,13 @@
 
 One BOP scene per object instance (scene id = object id), one image per view. Rendering again
 into the same folder skips every frame already committed, so an interrupted run resumes where it
-stopped; files are written atomically (see :mod:`isa.bop`), so no half-written frame is ever left.
+stopped; files are written atomically (see :mod:`isa.data.bop`), so no half-written frame is ever left.
 
 Command line (e.g. the paper's chair training set)::
 
-    python -m isa.dataset --modelnet ../shared/data/modelnet10 --category chair --out data/chair
-    python -m isa.dataset --procedural 10 --category table --out data/table
-    python -m isa.dataset --modelnet ../shared/data/modelnet10 --category chair --split test --views 10 --out data/chair
+    python -m isa dataset --modelnet ../shared/data/modelnet10 --category chair --out data/chair
+    python -m isa dataset --procedural 10 --category table --out data/table
+    python -m isa dataset --modelnet ../shared/data/modelnet10 --category chair --split test --views 10 --out data/chair
 """
 
 from __future__ import annotations
@@ -25,16 +25,16 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from isa import bop
+from isa.data import bop
 from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS, check_category
 from isa.exceptions import DataError
-from isa.meshes import prepare_mesh
-from isa.modelnet import list_instances, paper_instances, validation_instances
-from isa.noise import KinectNoise, apply_kinect_noise
-from isa.procedural import generate
-from isa.skeleton_graph import SkeletonGraph
-from isa.views import Views, sample_test_views, training_views
+from isa.data.meshes import prepare_mesh
+from isa.data.modelnet import list_instances, paper_instances, validation_instances
+from isa.render.noise import KinectNoise, apply_kinect_noise
+from isa.data.procedural import generate
+from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.render.views import Views, sample_test_views, training_views
 
 
 @dataclass
@@ -68,7 +68,7 @@ def modelnet_objects(
 
     For ``split="train"`` the first ``n`` instances in name order (``n=None``: the paper's count);
     for ``"test"`` the first ``n`` (``None``: all); for ``"validation"`` the last ``n`` of the train
-    split (``None``: :data:`isa.modelnet.VALIDATION_INSTANCES`), held out for tuning.
+    split (``None``: :data:`isa.data.modelnet.VALIDATION_INSTANCES`), held out for tuning.
     """
     if split == "validation":
         insts = validation_instances(root, category, n)
@@ -84,7 +84,7 @@ def modelnet_objects(
 
 
 def procedural_objects(category: str, n: int, seed: int = 0, first_obj_id: int = 1) -> list[ObjectSpec]:
-    """``n`` procedural instances (``isa.procedural.generate(category, (seed, i))``) as :class:`ObjectSpec`."""
+    """``n`` procedural instances (``isa.data.procedural.generate(category, (seed, i))``) as :class:`ObjectSpec`."""
     out = []
     for i in range(n):
         o = generate(category, (seed, i))
@@ -163,12 +163,12 @@ def render_dataset(
     """Render every object from every view into ``<out_root>/<split>/<obj_id>/`` (BOP) and write
     ``<out_root>/models/``.
 
-    ``views``: one :class:`~isa.views.Views` for all objects, a function of the object, or None for
+    ``views``: one :class:`~isa.render.views.Views` for all objects, a function of the object, or None for
     :func:`default_views` (``n_views`` per object, seeded by ``view_seed``). ``noise``: optional
-    :class:`~isa.noise.KinectNoise` (off by default), seeded per frame from ``noise_seed``. Frames
+    :class:`~isa.render.noise.KinectNoise` (off by default), seeded per frame from ``noise_seed``. Frames
     already written are skipped; resuming with other settings raises ``DataError``. PNG encoding
     runs on ``io_threads`` threads while the next frame renders. Pass a ``renderer``
-    (:class:`~isa.render.DepthRenderer` with the same intrinsics) to reuse its GL context.
+    (:class:`~isa.render.renderer.DepthRenderer` with the same intrinsics) to reuse its GL context.
     """
     t0 = time.perf_counter()
     out_root = Path(out_root)
@@ -192,7 +192,7 @@ def render_dataset(
     total = sum(len(v) for v in per_obj)
     own = renderer is None
     if own:
-        from isa.render import DepthRenderer
+        from isa.render.renderer import DepthRenderer
 
         renderer = DepthRenderer(intrinsics)
     pool = ThreadPoolExecutor(max(1, io_threads))
@@ -228,7 +228,7 @@ def render_dataset(
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m isa.dataset", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m isa dataset", description=__doc__.split("\n\n")[0])
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--modelnet", type=Path, help="ModelNet10 root (the paper's protocol instances)")
     src.add_argument("--procedural", type=int, metavar="N", help="render N procedural instances")

@@ -7,12 +7,12 @@ Both readers return a :class:`SceneFrame`:
   ``K`` counts pixels from 1, so ``cx``/``cy`` here are SUN's minus one; back-projecting ``depth``
   with them gives exactly SUN's point cloud);
 * ``R_gravity``: 3x3, camera to upright, ``X_up = R_gravity @ X_cam``;
-* ``boxes``: ground truth :class:`isa.boxes3d.Box3D`, in the upright frame.
+* ``boxes``: ground truth :class:`isa.evaluation.boxes3d.Box3D`, in the upright frame.
 
 **Upright frame** (SUN RGB-D's "upright depth" frame, used by Sliding Shapes, Deep Sliding Shapes,
 VoteNet, mmdetection3d): origin at the camera centre, ``z`` up against gravity, ``y`` the camera's
 viewing direction levelled to the horizontal, ``x`` to its right (right-handed). Box yaw is about
-``+z``, counter-clockwise from ``+x`` (see :mod:`isa.boxes3d`).
+``+z``, counter-clockwise from ``+x`` (see :mod:`isa.evaluation.boxes3d`).
 
 Layouts (see ``../shared/data/README.md``):
 
@@ -42,7 +42,7 @@ from typing import Iterator
 
 import numpy as np
 
-from isa.boxes3d import Box3D
+from isa.evaluation.boxes3d import Box3D
 from isa.camera import Intrinsics
 from isa.exceptions import DataError
 

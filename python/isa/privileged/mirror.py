@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from isa import bop
+from isa.data import bop
 from isa.exceptions import InvalidParameterError
 
 #: An instance counts as mirror-symmetric when the mean distance between its surface and its
@@ -80,7 +80,7 @@ def mirrored_frame(frame: bop.BopFrame, mirror: Mirror) -> bop.BopFrame:
 
 def with_mirrored(frames: Sequence[bop.BopFrame], mirrors: dict[int, Mirror | None]) -> bop.MappedFrames:
     """``frames`` followed by the mirrored copy of every frame whose object has a mirror; the
-    copies are made when they are read (:class:`isa.bop.MappedFrames`)."""
+    copies are made when they are read (:class:`isa.data.bop.MappedFrames`)."""
     ids = bop.frame_obj_ids(frames)
     items: list = [(i, None) for i in range(len(frames))]
     items += [(i, partial(mirrored_frame, mirror=mirrors[o])) for i, o in enumerate(ids) if mirrors.get(o) is not None]

@@ -78,7 +78,7 @@ def _crop_slices(mask: np.ndarray, shape: tuple[int, int], margin: float = 0.15)
 
 def bop_contact_sheet(root: str | Path, split: str, path: str | Path, per_scene: int = 2, max_images: int = 24, **kw) -> Path:
     """Contact sheet of the first ``per_scene`` frames of each scene of a BOP dataset written by isa."""
-    from isa import bop
+    from isa.data import bop
 
     depths, masks, titles = [], [], []
     for sid in bop.list_scenes(root, split):

@@ -150,7 +150,7 @@ def write_model(root: str | Path, obj_id: int, mesh_m: trimesh.Trimesh) -> Path:
 
 def read_model(root: str | Path, obj_id: int) -> trimesh.Trimesh:
     """Read ``models/obj_<id>.ply`` back in metres."""
-    from isa.meshes import load_mesh
+    from isa.data.meshes import load_mesh
 
     mesh = load_mesh(model_path(root, obj_id))
     mesh.apply_scale(0.001)
@@ -335,7 +335,7 @@ class FrameSequence(_LazyFrames):
     """The frames of a BOP split, each read from disk when it is asked for and not kept.
 
     A training set of thousands of 640x480 views (1.5 MB each in memory) then never sits in
-    memory whole; :func:`isa.annotate.build_training_set` keeps only each view's crop. Frames come in
+    memory whole; :func:`isa.privileged.annotate.build_training_set` keeps only each view's crop. Frames come in
     scene then image order, as :func:`read_scene` gives them; ``obj_ids`` lists each frame's
     object from the scenes' ``scene_gt.json`` without reading an image.
     """
@@ -361,7 +361,7 @@ class FrameSequence(_LazyFrames):
 class MappedFrames(_LazyFrames):
     """Frames computed on access from another sequence: item ``k`` is ``fn(base[i])`` for
     ``(i, fn) = items[k]`` (``base[i]`` itself when ``fn`` is None). Mirrored or relabelled copies
-    of a training set (:mod:`isa.mirror`, :mod:`isa.symmetry`) then cost no memory until used."""
+    of a training set (:mod:`isa.privileged.mirror`, :mod:`isa.privileged.symmetry`) then cost no memory until used."""
 
     def __init__(self, base: Sequence[BopFrame], items: list[tuple[int, Callable[[BopFrame], BopFrame] | None]]) -> None:
         self.base, self.items = base, items
