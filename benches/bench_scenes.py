@@ -27,8 +27,8 @@ def main() -> int:
     ap.add_argument("--no-noise", action="store_true", help="rooms without the sensor noise")
     a = ap.parse_args()
 
-    from isa.dataset import procedural_objects, render_dataset
-    from isa.noise import KinectNoise
+    from isa.render.dataset import procedural_objects, render_dataset
+    from isa.render.noise import KinectNoise
     from isa.scenes import make_scenes
     from isa.scenes.sources import procedural
 

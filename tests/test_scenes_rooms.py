@@ -15,7 +15,7 @@ import trimesh
 from PIL import Image
 from scipy.spatial import cKDTree
 
-from isa import bop
+from isa.data import bop
 from isa.camera import Intrinsics
 from isa.scenes import read_scene_dataset
 from isa.scenes.cameras import Camera, CameraRig, camera_pose
@@ -215,9 +215,9 @@ def test_cameras_stand_and_look_as_people_hold_them(clean_root):
 
 @pytest.mark.slow
 def test_modelnet_sources_test_and_validation_split(shared_data, tmp_path):
-    from isa.modelnet import paper_instances, validation_instances
+    from isa.data.modelnet import paper_instances, validation_instances
     from isa.scenes.sources import modelnet_test, modelnet_validation
-    from isa.ssc import centre_of_mass
+    from isa.privileged.ssc import centre_of_mass
 
     mn = shared_data / "modelnet10"
     test = modelnet_test(mn, ["chair"], n=2)
