@@ -1,5 +1,8 @@
 """Synthetic rooms in BOP: the ground truth lands on the right mesh, visibility matches an
-analytic occlusion, bop_toolkit's parsing reads the files, runs are reproducible and resumable."""
+analytic occlusion, bop_toolkit's parsing reads the files, runs are reproducible and resumable.
+
+The tests sharing the ``clean_root`` room are marked slow: preparing the procedural chairs (the
+skeleton template) and searching their turn symmetry take seconds before anything renders."""
 
 from __future__ import annotations
 
@@ -12,7 +15,7 @@ import trimesh
 from PIL import Image
 from scipy.spatial import cKDTree
 
-from isa import bop
+from isa.data import bop
 from isa.camera import Intrinsics
 from isa.scenes import read_scene_dataset
 from isa.scenes.cameras import Camera, CameraRig, camera_pose
@@ -45,6 +48,7 @@ def _files(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_visible_pixels_lie_on_their_own_mesh(clean_root):
     frames = read_scene_dataset(clean_root, "test")
     assert len(frames) == 2
@@ -62,7 +66,7 @@ def test_visible_pixels_lie_on_their_own_mesh(clean_root):
                 meshes[g.obj_id] = cKDTree(trimesh.sample.sample_surface(m, 300000, seed=0)[0])
             X = P[visib]
             own = meshes[g.obj_id].query((X - g.t) @ g.R)[0]  # R^T (X - t), row-wise
-            assert np.median(own) < 0.004 and np.percentile(own, 95) < 0.01, (f.im_id, k, np.median(own))
+            assert np.median(own) < 0.002 and np.percentile(own, 95) < 0.004, (f.im_id, k, np.median(own))
             for j, h in enumerate(f.gt):  # mapped by another instance's pose, they miss that mesh
                 if j != k and h.obj_id in meshes:
                     other = meshes[h.obj_id].query((X - h.t) @ h.R)[0]
@@ -111,6 +115,7 @@ def _load_json_keys_to_int(path):
         return json.load(f, object_hook=convert)
 
 
+@pytest.mark.slow
 def test_bop_toolkit_parsing_reads_the_files(clean_root):
     d = bop.scene_dir(clean_root, "test", 0)
     gt = _load_json_keys_to_int(d / "scene_gt.json")
@@ -148,6 +153,7 @@ def test_bop_toolkit_parsing_reads_the_files(clean_root):
             assert (along > 0).all()
 
 
+@pytest.mark.slow
 def test_bop_toolkit_loaders_read_the_files(clean_root):
     pytest.importorskip("bop_toolkit_lib")
     from bop_toolkit_lib import inout
@@ -159,6 +165,7 @@ def test_bop_toolkit_loaders_read_the_files(clean_root):
     inout.load_json(str(clean_root / "models" / "models_info.json"), keys_to_int=True)
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes_and_resume_after_a_kill(tmp_path, clean_root, source, monkeypatch):
     _make(tmp_path / "again", source)
     assert _files(tmp_path / "again") == _files(clean_root)
@@ -184,6 +191,7 @@ def test_same_seed_same_bytes_and_resume_after_a_kill(tmp_path, clean_root, sour
     assert _files(tmp_path / "killed") == _files(clean_root)
 
 
+@pytest.mark.slow
 def test_resuming_with_other_settings_is_refused(tmp_path, clean_root, source):
     from isa.exceptions import DataError
 
@@ -191,6 +199,7 @@ def test_resuming_with_other_settings_is_refused(tmp_path, clean_root, source):
         _make(clean_root, source, seed=4)
 
 
+@pytest.mark.slow
 def test_cameras_stand_and_look_as_people_hold_them(clean_root):
     for f in read_scene_dataset(clean_root, "test"):
         cam = bop.read_json(bop.scene_dir(clean_root, "test", f.scene_id) / "scene_camera.json")[str(f.im_id)]
@@ -202,3 +211,27 @@ def test_cameras_stand_and_look_as_people_hold_them(clean_root):
         np.testing.assert_allclose(up, [0, 0, 1], atol=1e-9)
         fwd = f.gravity @ np.array([0.0, 0.0, 1.0])
         assert abs(fwd[0]) < 1e-9 and fwd[1] > 0
+
+
+@pytest.mark.slow
+def test_modelnet_sources_test_and_validation_split(shared_data, tmp_path):
+    from isa.data.modelnet import paper_instances, validation_instances
+    from isa.scenes.sources import modelnet_test, modelnet_validation
+    from isa.privileged.ssc import centre_of_mass
+
+    mn = shared_data / "modelnet10"
+    test = modelnet_test(mn, ["chair"], n=2)
+    o = test.instance("chair", 1)
+    assert o.obj_id == 2 and "/test/chair_" in o.source
+    # centred on its centre of mass (chair's CENTRE), at a real chair's height
+    np.testing.assert_allclose(centre_of_mass(o.mesh), 0.0, atol=0.01)
+    assert 0.75 <= o.mesh.extents[2] <= 1.10
+    val = modelnet_validation(mn, ["chair"], n=3)
+    names = {str(i.path) for i in validation_instances(mn, "chair", 3)}
+    protocol = {str(i.path) for i in paper_instances(mn, "chair")}
+    srcs = set(val.sources("chair"))
+    assert srcs == names and not srcs & protocol
+    s = make_scenes(tmp_path, "test", test, 1, 1, seed=0, noise=False, n_instances=(2, 2), rig=RIG, progress=False)
+    assert s.rendered == 1
+    f = read_scene_dataset(tmp_path, "test")[0]
+    assert {g.category for g in f.gt} <= {"chair"} and all(len(g.points) > 4096 for g in f.gt)

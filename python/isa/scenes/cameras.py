@@ -4,7 +4,7 @@ degrees, a few degrees of roll, looking into the room at the furniture.
 World frame (every scene of :mod:`isa.scenes`): metres, z up, the floor at z = 0. A camera is the
 OpenCV pose of the world in the camera, ``X_cam = R @ X_world + t``, with the gravity rotation
 ``R_gravity`` (camera to upright, ``X_up = R_gravity @ X_cam``) in the convention of
-:mod:`isa.sunrgbd`: origin at the camera, z up, y the camera's levelled viewing direction.
+:mod:`isa.data.sunrgbd`: origin at the camera, z up, y the camera's levelled viewing direction.
 """
 
 from __future__ import annotations

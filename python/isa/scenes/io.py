@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from isa import bop
+from isa.data import bop
 from isa.camera import Intrinsics
 from isa.exceptions import DataError
 
@@ -103,7 +103,7 @@ def box_points(box_min, size) -> np.ndarray:
 def read_models(root: str | Path) -> dict[int, ModelTruth]:
     """Every model of ``models/models_info.json`` with its category (``isa_category``), size,
     symmetries and Eq. 14 points."""
-    from isa.pose_metrics import model_points
+    from isa.evaluation.pose_metrics import model_points
 
     root = Path(root)
     out = {}

@@ -18,8 +18,8 @@ import trimesh
 from shapely import affinity
 from shapely.geometry import MultiPoint, Point, Polygon, box as shapely_box
 
-from isa.boxes3d import rot_z
-from isa.dataset import ObjectSpec
+from isa.evaluation.boxes3d import rot_z
+from isa.render.dataset import ObjectSpec
 from isa.exceptions import InvalidParameterError
 
 WALL_HEIGHT = 2.6

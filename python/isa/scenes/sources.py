@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 from isa import pipeline
 from isa.categories import CENTRE, check_category
-from isa.dataset import ObjectSpec, modelnet_objects, procedural_objects
+from isa.render.dataset import ObjectSpec, modelnet_objects, procedural_objects
 from isa.exceptions import DataError
-from isa.ssc import CategorySSC
+from isa.privileged.ssc import CategorySSC
 
 #: Procedural instances per category in a procedural source.
 PROCEDURAL_INSTANCES = 6
@@ -50,6 +50,10 @@ class MeshSource:
 
     def count(self, category: str) -> int:
         return len(self._objects(category))
+
+    def sources(self, category: str) -> list[str]:
+        """Where each instance of ``category`` comes from (file or generator seed), unprepared."""
+        return [o.source for o in self._objects(category)]
 
     def first_obj_id(self, category: str) -> int:
         return 1 + sum(self.count(c) for c in self.categories[: self.categories.index(category)])
@@ -126,11 +130,11 @@ def modelnet_test(root, categories: Sequence[str], n: int | None = None, seed: i
 
 def modelnet_validation(root, categories: Sequence[str], n: int | None = None, seed: int = 0,
                         ssc: Mapping[str, CategorySSC] | None = None) -> MeshSource:
-    """The LAST ``n`` train-split meshes per category (:func:`isa.modelnet.validation_instances`,
-    default :data:`isa.modelnet.VALIDATION_INSTANCES`): for validation scenes, never the paper
+    """The LAST ``n`` train-split meshes per category (:func:`isa.data.modelnet.validation_instances`,
+    default :data:`isa.data.modelnet.VALIDATION_INSTANCES`): for validation scenes, never the paper
     protocol's first instances (``DataError`` if they would overlap)."""
     from isa.categories import PAPER_INSTANCES
-    from isa.modelnet import validation_instances
+    from isa.data.modelnet import validation_instances
 
     cats = _check(categories)
     for c in cats:  # raises when the protocol's training instances and these would overlap

@@ -30,14 +30,14 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
-from isa import bop
+from isa.data import bop
 from isa.camera import Intrinsics
-from isa.dataset import ObjectSpec
+from isa.render.dataset import ObjectSpec
 from isa.exceptions import DataError
-from isa.noise import KinectNoise, apply_kinect_noise
+from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.scenes.cameras import Camera, CameraRig, sample_camera
 from isa.scenes.rooms import Room, RoomParams, make_room
-from isa.symmetry import YawSymmetry, find_yaw_symmetry
+from isa.privileged.symmetry import YawSymmetry, find_yaw_symmetry
 
 #: bop_toolkit's visibility tolerance (calc_gt_info.py ``delta``), millimetres.
 DELTA_MM = 15.0
@@ -204,7 +204,7 @@ class _Renderers:
     ZNEAR = 0.05
 
     def __init__(self, K: Intrinsics) -> None:
-        from isa.render import DepthRenderer
+        from isa.render.renderer import DepthRenderer
 
         self.K = K
         self.image = DepthRenderer(K, znear=self.ZNEAR, cache_size=16)
@@ -416,7 +416,7 @@ def make_scenes(
     """Write ``n_scenes`` synthetic rooms x ``views_per_scene`` views to ``<out_root>/<split>/``
     (BOP; scene ids 0..n_scenes-1) with instances from ``source``
     (:mod:`isa.scenes.sources`). Room ``s`` and its views are drawn from ``(seed, s)``; the sensor
-    noise (``noise=True``: :class:`isa.noise.KinectNoise` defaults) from ``(seed, s, view)``.
+    noise (``noise=True``: :class:`isa.render.noise.KinectNoise` defaults) from ``(seed, s, view)``.
     Resumable: committed frames are skipped; other settings in the same folder raise ``DataError``.
     """
     if n_scenes < 0 or views_per_scene < 1:
