@@ -223,22 +223,23 @@ def scenes_section(report, name: str, views: Sequence[View], detections: Sequenc
         ms = scores.metrics[c]
         some = next(m for m in ms.values() if m is not None)
         rows.append([c, *(_pct(None if ms[m] is None else 100 * ms[m].ap) for m in METRICS),
-                     f"{some.n_ground_truth} ({some.n_ignored} ignored)"])
-    report.table(["category", *(_METRIC_NAMES[m] for m in METRICS), "objects"], rows)
+                     f"{some.n_ground_truth} (+{some.n_ignored})", f"{some.n_detections}"])
+    report.table(["category", *(_METRIC_NAMES[m] for m in METRICS), "objects (+ ignored)", "detections"], rows)
     bins = [f"{lo:g}-{hi:g}" for lo, hi in VISIB_BINS]
     rows = []
     for c in cats:
         for m in METRICS:
             s = scores.metrics[c][m]
-            if s is None:
+            if s is None or s.n_ground_truth + s.n_ignored == 0:
                 continue
             rec = [f"{_pct(100 * s.recall_by_visib[b][0])} ({s.recall_by_visib[b][1]})" for b in bins]
             t = "n/a" if s.median_translation_m is None else f"{100 * s.median_translation_m:.1f}"
             r = "n/a" if s.median_rotation_deg is None else f"{s.median_rotation_deg:.1f}"
             rows.append([c, _METRIC_NAMES[m], _pct(100 * s.final_recall), *rec, f"{s.n_true_positive}", t, r])
-    report.text("Recall (%) of all detections, of the counted objects and by the objects' visible fraction (objects "
-                "in the bin in brackets; ignored ones included), and the median errors of the true positives (translation of the pose, or "
-                "of the box centre without one).")
+    report.text("Recall (%) of all detections: of the counted objects, and by the objects' visible fraction "
+                "(objects in the bin in brackets, ignored ones included); median errors of the true positives "
+                "(translation of the pose, or of the box centre without one; rotation against the nearest "
+                "symmetric pose, except under Eq. 14).")
     report.table(["category", "metric", "recall", *(f"recall, visib {b}" for b in bins), "TPs", "median t error (cm)",
                   "median rotation error (deg)"], rows)
     slug = "".join(ch if ch.isalnum() else "-" for ch in name.lower())

@@ -343,7 +343,8 @@ class MetricScore:
     ignored ones; ``n_detections`` ranked detections (ignored ones left out), ``n_true_positive``;
     ``recall_by_visib`` bin name -> (recall or nan, objects in the bin); ``ap_by_visib`` bin name ->
     AP with only that bin's objects counted; ``median_translation_m`` / ``median_rotation_deg``
-    over the true positives (None when there are none, or for boxes without poses).
+    over the true positives (None when there are none, or for boxes without poses): for every
+    metric but ``6d`` against the symmetric pose of the object closest to the detection.
     """
 
     metric: str
@@ -529,7 +530,7 @@ def _score(cat, metric, order, det_frame, det_row, S, thr, visib, min_visib, cd,
         j = int(np.argmax(S[f][det_row[d]]))
         c, g = cd[f][det_row[d]], tg[f][j]
         if has_pose:
-            te, re = _pose_errors(c, g, metric == "6d_sym")
+            te, re = _pose_errors(c, g, metric != "6d")  # a box does not see a symmetric turn either
             t_err.append(te)
             r_err.append(re)
         else:
