@@ -28,6 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
+
 from isa.camera import Intrinsics
 from isa.exceptions import DataError
 from isa.scenes.scoring import (
@@ -38,7 +40,6 @@ from isa.scenes.scoring import (
     evaluate,
     ground_truth_box,
 )
-from tqdm.auto import tqdm
 
 __all__ = [
     "DETECTIONS_SCHEMA",
@@ -279,7 +280,7 @@ def run_datasets(report, datasets: Mapping[str, Mapping[str, Any]], models: Mapp
                  min_visib: float | None = None, n_figures: int = 3, progress: bool = True,
                  heading_level: int = 2) -> dict[str, dict[str, Any]]:
     """Detect, score and report every dataset. ``datasets``: name -> {"kind", "source", "split",
-    optional "limit", "description"}; ``models``: category -> model path or Forest. Returns what
+    optional "limit", "description", "views" (already read)}; ``models``: category -> model path or Forest. Returns what
     :func:`save_detections` stores (name -> the dataset's entry with its frames and detections)."""
     from isa.detection.hypotheses import DetectionParams
 
@@ -287,7 +288,7 @@ def run_datasets(report, datasets: Mapping[str, Mapping[str, Any]], models: Mapp
     forests, sources = load_models(models)
     stored = {}
     for name, d in datasets.items():
-        views = dataset_views(d["kind"], d["source"], d.get("split"), d.get("limit"))
+        views = d.get("views") or dataset_views(d["kind"], d["source"], d.get("split"), d.get("limit"))
         t0 = time.perf_counter()
         dets, secs = detect_views(forests, views, params, progress, desc=f"detect {name}")
         seconds = time.perf_counter() - t0

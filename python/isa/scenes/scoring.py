@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
 from isa.evaluation.boxes3d import Box3D, box_from_pose, iou_matrix, rot_z, voc_ap
 from isa.evaluation.pose_metrics import average_distance, model_diameter
 from isa.exceptions import InvalidInputError, InvalidParameterError
