@@ -63,10 +63,10 @@ def test_visible_pixels_lie_on_their_own_mesh(clean_root):
                 continue
             if g.obj_id not in meshes:
                 m = bop.read_model(clean_root, g.obj_id)
-                meshes[g.obj_id] = cKDTree(trimesh.sample.sample_surface(m, 300000, seed=0)[0])
+                meshes[g.obj_id] = cKDTree(trimesh.sample.sample_surface(m, 120000, seed=0)[0])
             X = P[visib]
             own = meshes[g.obj_id].query((X - g.t) @ g.R)[0]  # R^T (X - t), row-wise
-            assert np.median(own) < 0.002 and np.percentile(own, 95) < 0.004, (f.im_id, k, np.median(own))
+            assert np.median(own) < 0.0025 and np.percentile(own, 95) < 0.005, (f.im_id, k, np.median(own))
             for j, h in enumerate(f.gt):  # mapped by another instance's pose, they miss that mesh
                 if j != k and h.obj_id in meshes:
                     other = meshes[h.obj_id].query((X - h.t) @ h.R)[0]

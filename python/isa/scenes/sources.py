@@ -19,7 +19,9 @@ from isa import pipeline
 from isa.categories import CENTRE, check_category
 from isa.render.dataset import ObjectSpec, modelnet_objects, procedural_objects
 from isa.exceptions import DataError
-from isa.privileged.ssc import CategorySSC
+from isa.privileged.matching import template_from_ground_truth
+from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.privileged.ssc import CategorySSC, centre_of_mass, select_ssc
 
 #: Procedural instances per category in a procedural source.
 PROCEDURAL_INSTANCES = 6
@@ -97,14 +99,23 @@ def procedural(categories: Sequence[str], seed: int = 0, n: int = PROCEDURAL_INS
     cats = _check(categories)
     raw = {c: procedural_objects(c, n, seed=seed) for c in cats}
 
-    def ssc_for(category: str) -> CategorySSC | None:
+    def ssc_for(category: str) -> CategorySSC:
         if ssc and category in ssc:
             return ssc[category]
-        if CENTRE.get(category) != "ssc":
-            return None
-        return pipeline.prepare_category(category, raw[category], use_ground_truth=True, progress=False).ssc
+        return ground_truth_ssc(category, raw[category])
 
     return MeshSource(f"procedural:{seed}:{n}", cats, lambda c: raw[c], _preparer(ssc_for, True))
+
+
+def ground_truth_ssc(category: str, objects: Sequence[ObjectSpec]) -> CategorySSC:
+    """The CategorySSC that ``prepare_category(category, objects, use_ground_truth=True)`` fits,
+    without calibrating the template against skeleton extraction (seconds per category): with
+    true skeletons the template lends only its node names and links, so the SSC and every origin
+    are the same."""
+    template = template_from_ground_truth([o.skeleton for o in objects], [o.mesh.bounds for o in objects])
+    matched = [SkeletonGraph(o.skeleton.nodes, template.links, template.names) for o in objects]
+    coms = [centre_of_mass(o.mesh) for o in objects]
+    return CategorySSC(template, select_ssc(matched, coms), centre=CENTRE.get(category, "ssc"))
 
 
 def _modelnet_ssc(root, ssc: Mapping[str, CategorySSC] | None):
