@@ -235,3 +235,17 @@ def test_modelnet_sources_test_and_validation_split(shared_data, tmp_path):
     assert s.rendered == 1
     f = read_scene_dataset(tmp_path, "test")[0]
     assert {g.category for g in f.gt} <= {"chair"} and all(len(g.points) > 4096 for g in f.gt)
+
+
+def test_bad_output_folder_and_category_are_named(tmp_path):
+    from isa.exceptions import DataError
+    from isa.scenes import make_scan2cad_scenes
+
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(DataError, match="file exists and is not a folder"):
+        make_scenes(tmp_path / "file", "test", procedural(["chair"], n=1), 1, 1, progress=False)
+    with pytest.raises(DataError, match="unknown category 'sofa'"):
+        procedural(["sofa"])
+    with pytest.raises(DataError, match="example_annotation.json"):
+        make_scan2cad_scenes(tmp_path / "out", tmp_path / "no-scan", 1)
+    assert not (tmp_path / "out").exists()  # nothing written on bad input

@@ -1,4 +1,4 @@
-"""Scenes to disk in the BOP format (the layout of docs/scenes, readable by bop_toolkit):
+"""Scenes to disk in the BOP format (the layout in docs/scenes.md, readable by bop_toolkit):
 multi-object ``scene_gt.json``, ``scene_gt_info.json`` computed as bop_toolkit's
 ``scripts/calc_gt_info.py`` does, ``mask/`` and ``mask_visib/`` per instance, ``models/`` with
 ``models_info.json`` (diameter, extents, turn symmetries) and ``camera.json``.
@@ -321,6 +321,18 @@ def write_camera(root: Path, K: Intrinsics) -> None:
     bop.write_json(path, cam)
 
 
+def output_split(out_root, split: str) -> Path:
+    """``Path(out_root)`` with ``<out_root>/<split>`` created; ``DataError`` naming what is in the way."""
+    root = Path(out_root)
+    if not split or "/" in split or split in (".", ".."):
+        raise DataError(f"split: expected a folder name such as 'test', got {split!r}")
+    for p in (root, root / split):
+        if p.exists() and not p.is_dir():
+            raise DataError(f"output folder {p} exists and is not a folder")
+    (root / split).mkdir(parents=True, exist_ok=True)
+    return root
+
+
 def check_settings(path: Path, settings: dict) -> None:
     """Refuse to resume into a split made with other settings (frames would be mixed)."""
     settings = _jsonable(settings)
@@ -422,8 +434,7 @@ def make_scenes(
     if n_scenes < 0 or views_per_scene < 1:
         raise DataError(f"make_scenes: need n_scenes >= 0 and views_per_scene >= 1, got {n_scenes}, {views_per_scene}")
     params = KinectNoise() if noise is True else (noise or None)
-    root = Path(out_root)
-    (root / split).mkdir(parents=True, exist_ok=True)
+    root = output_split(out_root, split)
     check_settings(root / split / SETTINGS_FILE, {
         "kind": "rooms", "source": source.name, "categories": list(source.categories), "seed": seed,
         "views_per_scene": views_per_scene, "noise": asdict(params) if params else None,
