@@ -23,6 +23,8 @@ from ``(seed, scene_id)`` alone, so a rerun, a resumed run and a fresh run give 
 from __future__ import annotations
 
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -217,24 +219,35 @@ class _Renderers:
         self.big.close()
 
 
-def render_frame(spec: SceneSpec, cam: Camera, r: _Renderers, noise: KinectNoise | None, noise_seed) -> tuple:
-    """One view: stored depth (uint16 mm), and per instance in the image: its index in
-    ``spec.placements``, info, mask, visible mask."""
+def render_views(spec: SceneSpec, cam: Camera, r: _Renderers) -> tuple[np.ndarray, list]:
+    """The GL half of a view: the clean scene depth, and per instance in the image its index in
+    ``spec.placements``, its depth rendered alone and (when the image border cuts it) its
+    silhouette on the large canvas."""
     scene, _ = r.image.render(spec.mesh, cam.R, cam.t)
+    views = []
+    for k, p in enumerate(spec.placements):
+        alone, mask = r.image.render(p.mesh, cam.R, cam.t)
+        if mask.any():
+            full = r.big.render(p.mesh, cam.R, cam.t)[1] if _cut_by_border(p.mesh, cam, r.ZNEAR) else None
+            views.append((k, alone, full))
+    return scene, views
+
+
+def frame_truth(scene: np.ndarray, views: list, cam: Camera, factor: np.ndarray, noise: KinectNoise | None,
+                noise_seed) -> tuple[np.ndarray, list]:
+    """The CPU half: the stored depth (uint16 mm, noisy unless ``noise`` is None) and per
+    instance ``(index, info, mask, visible mask)``."""
     depth = apply_kinect_noise(scene, cam.intrinsics, noise_seed, noise) if noise is not None else scene
     stored = bop.depth_to_png(depth)
     stored_m = bop.png_to_depth(stored)
-    out = []
-    for k, p in enumerate(spec.placements):
-        alone, mask = r.image.render(p.mesh, cam.R, cam.t)
-        if not mask.any():
-            continue
-        full = None
-        if _cut_by_border(p.mesh, cam, r.ZNEAR):
-            _, full = r.big.render(p.mesh, cam.R, cam.t)
-        info, m, visib = gt_info(scene, stored_m, alone, r.factor, full, (cam.intrinsics.width, cam.intrinsics.height))
-        out.append((k, info, m, visib))
-    return stored, out
+    K = cam.intrinsics
+    return stored, [(k, *gt_info(scene, stored_m, alone, factor, full, (K.width, K.height))) for k, alone, full in views]
+
+
+def render_frame(spec: SceneSpec, cam: Camera, r: _Renderers, noise: KinectNoise | None, noise_seed) -> tuple:
+    """One view: :func:`render_views` then :func:`frame_truth`."""
+    scene, views = render_views(spec, cam, r)
+    return frame_truth(scene, views, cam, r.factor, noise, noise_seed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -370,6 +383,8 @@ def write_scenes(out_root, split: str, scenes, n_frames: int, noise: KinectNoise
     write_camera(root, intrinsics)
     summary = ScenesSummary()
     renderers = None
+    pool = ThreadPoolExecutor(1)
+    pending: deque = deque()
     try:
         with tqdm(total=n_frames, desc=desc, unit="frame", disable=not progress) as bar:
             for scene_id, n_views, build in scenes:
@@ -386,11 +401,25 @@ def write_scenes(out_root, split: str, scenes, n_frames: int, noise: KinectNoise
                     renderers = _Renderers(intrinsics)
                 for im_id in todo:
                     cam = spec.cameras[im_id]
-                    stored, found = render_frame(spec, cam, renderers, noise, [seed, scene_id, im_id, 2])
-                    folder.commit(im_id, stored, cam, spec, found)
+                    scene, views = render_views(spec, cam, renderers)  # GL stays on this thread
+
+                    def finish(im_id=im_id, cam=cam, scene=scene, views=views, folder=folder, spec=spec):
+                        stored, found = frame_truth(scene, views, cam, renderers.factor, noise, [seed, scene_id, im_id, 2])
+                        folder.commit(im_id, stored, cam, spec, found)
+
+                    # Noise, PNGs and JSON of this view on one worker thread (commits stay in
+                    # order) while the next view renders; at most two views in flight.
+                    pending.append(pool.submit(finish))
+                    while len(pending) > 1:
+                        pending.popleft().result()
+                        summary.rendered += 1
+                        bar.update(1)
+                while pending:
+                    pending.popleft().result()
                     summary.rendered += 1
                     bar.update(1)
     finally:
+        pool.shutdown(wait=True)  # frames in flight are finished whole, never left half-written
         if renderers is not None:
             renderers.close()
     summary.seconds = time.perf_counter() - t0
