@@ -249,3 +249,14 @@ def test_bad_output_folder_and_category_are_named(tmp_path):
     with pytest.raises(DataError, match="example_annotation.json"):
         make_scan2cad_scenes(tmp_path / "out", tmp_path / "no-scan", 1)
     assert not (tmp_path / "out").exists()  # nothing written on bad input
+
+
+@pytest.mark.slow
+def test_lazy_reading_gives_the_same_frames(clean_root):
+    eager = read_scene_dataset(clean_root, "test")
+    lazy = read_scene_dataset(clean_root, "test", lazy=True)
+    assert len(lazy) == len(eager)
+    for a, b in zip(eager, lazy):
+        np.testing.assert_array_equal(a.depth, b.depth)
+        assert [(g.obj_id, g.visib_fract) for g in a.gt] == [(g.obj_id, g.visib_fract) for g in b.gt]
+        np.testing.assert_array_equal(a.gt[0].t, b.gt[0].t)

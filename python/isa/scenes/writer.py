@@ -34,7 +34,8 @@ from tqdm.auto import tqdm
 
 from isa.data import bop
 from isa.camera import Intrinsics
-from isa.render.dataset import ObjectSpec
+from isa.render.dataset import ObjectSpec, RenderSummary
+from isa.render.dataset import check_settings as render_dataset_check
 from isa.exceptions import DataError
 from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.scenes.cameras import Camera, CameraRig, sample_camera
@@ -347,30 +348,15 @@ def output_split(out_root, split: str) -> Path:
 
 
 def check_settings(path: Path, settings: dict) -> None:
-    """Refuse to resume into a split made with other settings (frames would be mixed)."""
-    settings = _jsonable(settings)
-    if path.is_file():
-        old = bop.read_json(path)
-        if old != settings:
-            raise DataError(f"{path} was written with other settings ({old}); use a new output folder or delete it")
-    else:
-        bop.write_json(path, settings)
-
-
-def _jsonable(x):
+    """:func:`isa.render.dataset.check_settings` on the settings as JSON gives them back
+    (tuples become lists), so a resumed run compares equal."""
     import json
 
-    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    render_dataset_check(path, json.loads(json.dumps(settings, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))))
 
 
-@dataclass
-class ScenesSummary:
-    """What a run did: frames rendered now, frames already on disk, seconds, scene ids."""
-
-    rendered: int = 0
-    skipped: int = 0
-    seconds: float = 0.0
-    scenes: list[int] = field(default_factory=list)
+#: What a run did: frames rendered now, frames already on disk, seconds, scene ids.
+ScenesSummary = RenderSummary
 
 
 def write_scenes(out_root, split: str, scenes, n_frames: int, noise: KinectNoise | None, seed: int,
