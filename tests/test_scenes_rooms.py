@@ -260,3 +260,25 @@ def test_lazy_reading_gives_the_same_frames(clean_root):
         np.testing.assert_array_equal(a.depth, b.depth)
         assert [(g.obj_id, g.visib_fract) for g in a.gt] == [(g.obj_id, g.visib_fract) for g in b.gt]
         np.testing.assert_array_equal(a.gt[0].t, b.gt[0].t)
+
+
+def test_camera_sampler_ranges_and_gravity_analytic():
+    from isa.scenes.cameras import gravity_rotation, sample_camera
+
+    rng = np.random.default_rng(0)
+    targets = np.array([[0.0, 0.0, 0.4], [1.0, 0.5, 0.3]])
+    for _ in range(100):
+        c = sample_camera(rng, targets, lambda eye: True, RIG)
+        assert 0.9 <= c.eye[2] <= 1.8 and 0.0 <= c.pitch_deg() <= 45.0 + 1e-9 and abs(c.roll_deg()) <= 3.0 + 1e-9
+        uv = [SMALL.project((c.R @ p + c.t)[None])[0] for p in targets]
+        assert any(0 <= u < SMALL.width and 0 <= v < SMALL.height for u, v in uv)
+    # A camera pitched down by p, no roll: its optical axis is (0, cos p, -sin p) upright, and
+    # gravity @ R maps world vectors to the upright frame turned so that the view is along +y.
+    p, yaw = np.radians(30.0), np.radians(70.0)
+    R, _ = camera_pose((0.0, 0.0, 1.5), yaw, p)
+    G = gravity_rotation(R)
+    np.testing.assert_allclose(G @ [0.0, 0.0, 1.0], [0.0, np.cos(p), -np.sin(p)], atol=1e-12)
+    np.testing.assert_allclose(G @ R @ [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(G @ G.T, np.eye(3), atol=1e-12)
+    with pytest.raises(Exception, match="no free view"):
+        sample_camera(rng, targets, lambda eye: False, RIG, attempts=5)
