@@ -282,3 +282,22 @@ def test_camera_sampler_ranges_and_gravity_analytic():
     np.testing.assert_allclose(G @ G.T, np.eye(3), atol=1e-12)
     with pytest.raises(Exception, match="no free view"):
         sample_camera(rng, targets, lambda eye: False, RIG, attempts=5)
+
+
+def test_symmetries_round_trip_through_bop_fields():
+    from isa.privileged.symmetry import YawSymmetry
+    from isa.scenes.io import CONTINUOUS_Z, symmetries_of
+    from isa.scenes.writer import symmetries_entry
+
+    c = np.array([0.1, -0.2, 0.0])
+    e = symmetries_entry(YawSymmetry(c, 4, 0.0))
+    assert len(e["symmetries_discrete"]) == 3  # BOP leaves the identity out
+    T = np.array(e["symmetries_discrete"][1]).reshape(4, 4)  # the half turn: x -> 2c - x in xy, mm
+    X = np.array([0.3, 0.4, 0.5])
+    np.testing.assert_allclose((T[:3, :3] @ (1000 * X) + T[:3, 3]) / 1000, [2 * c[0] - X[0], 2 * c[1] - X[1], X[2]], atol=1e-12)
+    group, centre = symmetries_of(e, "test")
+    assert len(group) == 4 and np.allclose(group[0], np.eye(3)) and np.allclose(centre, c)
+    e = symmetries_entry(YawSymmetry(c, 0, 0.0))
+    assert e == {"symmetries_continuous": [{"axis": [0.0, 0.0, 1.0], "offset": [100.0, -200.0, 0.0]}]}
+    assert symmetries_of(e, "test")[0] == CONTINUOUS_Z and np.allclose(symmetries_of(e, "test")[1], c)
+    assert symmetries_entry(YawSymmetry(c, 1, 0.0)) == {} and len(symmetries_of({}, "test")[0]) == 1

@@ -76,7 +76,9 @@ class ModelTruth:
     points: np.ndarray
 
 
-def _symmetries(info: dict, where: str) -> tuple[list | str, np.ndarray]:
+def symmetries_of(info: dict, where: str) -> tuple[list | str, np.ndarray]:
+    """A ``models_info`` entry's turn group (``GroundTruth.symmetries``) and its axis' point
+    (metres); ``where`` names the entry in errors."""
     cont = info.get("symmetries_continuous") or []
     if cont:
         axis = np.asarray(cont[0]["axis"], float)
@@ -115,7 +117,7 @@ def read_models(root: str | Path) -> dict[int, ModelTruth]:
             lo = np.array([info["min_x"], info["min_y"], info["min_z"]], float) / 1000.0
         except KeyError as exc:
             raise DataError(f"{where}: missing {exc}") from None
-        syms, centre = _symmetries(info, where)
+        syms, centre = symmetries_of(info, where)
         if bop.model_path(root, obj_id).is_file():
             pts = model_points(bop.read_model(root, obj_id))
         else:
