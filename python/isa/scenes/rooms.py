@@ -19,7 +19,7 @@ from shapely import affinity
 from shapely.geometry import MultiPoint, Point, Polygon, box as shapely_box
 
 from isa.evaluation.boxes3d import rot_z
-from isa.render.dataset import ObjectSpec
+from isa.render.dataset import ObjectSpec, hull_points
 from isa.exceptions import InvalidParameterError
 
 WALL_HEIGHT = 2.6
@@ -92,11 +92,8 @@ class RoomParams:
 
 
 def _hull_xy(mesh: trimesh.Trimesh) -> Polygon:
-    try:
-        v = np.asarray(mesh.convex_hull.vertices)
-    except Exception:
-        v = np.asarray(mesh.vertices)
-    return MultiPoint([tuple(p) for p in v[:, :2]]).convex_hull
+    """The footprint: the mesh's convex hull seen from above."""
+    return MultiPoint([tuple(p) for p in hull_points(mesh)[:, :2]]).convex_hull
 
 
 def _inside(poly: Polygon, size: tuple[float, float], margin: float = 0.05) -> bool:

@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 
 from isa.data import bop
 from isa.camera import Intrinsics
-from isa.render.dataset import ObjectSpec, RenderSummary
+from isa.render.dataset import ObjectSpec, RenderSummary, hull_points
 from isa.render.dataset import check_settings as render_dataset_check
 from isa.exceptions import DataError
 from isa.render.noise import KinectNoise, apply_kinect_noise
@@ -127,6 +127,14 @@ class Placement:
     R: np.ndarray
     t: np.ndarray
     mesh: trimesh.Trimesh
+    _hull: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def hull(self) -> np.ndarray:
+        """The mesh's convex-hull vertices (all vertices when it has no 3D hull), computed once."""
+        if self._hull is None:
+            self._hull = hull_points(self.mesh)
+        return self._hull
 
 
 @dataclass(eq=False)
@@ -186,14 +194,10 @@ def gt_info(scene_depth: np.ndarray, stored_depth: np.ndarray, alone_depth: np.n
     return info, mask, visib
 
 
-def _cut_by_border(mesh: trimesh.Trimesh, cam: Camera, znear: float) -> bool:
+def _cut_by_border(hull: np.ndarray, cam: Camera, znear: float) -> bool:
     """Whether any of the mesh's hull vertices projects outside the image (or lies behind the
     near plane): only then can the silhouette extend beyond the image."""
-    try:
-        v = np.asarray(mesh.convex_hull.vertices)
-    except Exception:
-        v = np.asarray(mesh.vertices)
-    X = v @ cam.R.T + cam.t
+    X = hull @ cam.R.T + cam.t
     if np.any(X[:, 2] <= znear):
         return True
     K = cam.intrinsics
@@ -229,7 +233,7 @@ def render_views(spec: SceneSpec, cam: Camera, r: _Renderers) -> tuple[np.ndarra
     for k, p in enumerate(spec.placements):
         alone, mask = r.image.render(p.mesh, cam.R, cam.t)
         if mask.any():
-            full = r.big.render(p.mesh, cam.R, cam.t)[1] if _cut_by_border(p.mesh, cam, r.ZNEAR) else None
+            full = r.big.render(p.mesh, cam.R, cam.t)[1] if _cut_by_border(p.hull, cam, r.ZNEAR) else None
             views.append((k, alone, full))
     return scene, views
 
