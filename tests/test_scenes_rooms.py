@@ -301,3 +301,24 @@ def test_symmetries_round_trip_through_bop_fields():
     assert e == {"symmetries_continuous": [{"axis": [0.0, 0.0, 1.0], "offset": [100.0, -200.0, 0.0]}]}
     assert symmetries_of(e, "test")[0] == CONTINUOUS_Z and np.allclose(symmetries_of(e, "test")[1], c)
     assert symmetries_entry(YawSymmetry(c, 1, 0.0)) == {} and len(symmetries_of({}, "test")[0]) == 1
+
+
+@pytest.mark.slow
+def test_noise_changes_the_depth_not_the_visibility(tmp_path, clean_root, source):
+    # Visibility is tested against the clean scene (docs/scenes.md), so the noisy run's masks and
+    # counts equal the clean run's; only the depth and px_count_valid (its holes) differ.
+    _make(tmp_path, source, noise=True)
+    for name in ("scene_gt.json", "scene_camera.json"):
+        assert (bop.scene_dir(tmp_path, "test", 0) / name).read_bytes() == (bop.scene_dir(clean_root, "test", 0) / name).read_bytes()
+    noisy = bop.read_json(bop.scene_dir(tmp_path, "test", 0) / "scene_gt_info.json")
+    clean = bop.read_json(bop.scene_dir(clean_root, "test", 0) / "scene_gt_info.json")
+    fewer = 0
+    for k in clean:
+        for a, b in zip(clean[k], noisy[k]):
+            assert {x: a[x] for x in a if x != "px_count_valid"} == {x: b[x] for x in b if x != "px_count_valid"}
+            assert b["px_count_valid"] <= a["px_count_valid"]  # the sensor's holes
+            fewer += b["px_count_valid"] < a["px_count_valid"]
+    assert fewer > 0
+    d0 = bop.read_png(bop.scene_dir(tmp_path, "test", 0) / "depth" / "000000.png")
+    d1 = bop.read_png(bop.scene_dir(clean_root, "test", 0) / "depth" / "000000.png")
+    assert (d0 == 0).sum() > (d1 == 0).sum() and np.abs(d0.astype(int) - d1)[(d0 > 0) & (d1 > 0)].mean() > 1
