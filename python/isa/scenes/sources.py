@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from isa import pipeline
 from isa.categories import CENTRE, check_category
@@ -134,13 +135,25 @@ def _modelnet_ssc(root, ssc: Mapping[str, CategorySSC] | None):
     return ssc_for
 
 
+def _modelnet_load(root, split: str, n: int | None, seed: int):
+    """ModelNet instances of a category with a machine-independent ``source``:
+    ``modelnet:<split folder>/<file>`` (the contract's ``isa_source``)."""
+    def load(category: str) -> list[ObjectSpec]:
+        objs = modelnet_objects(root, category, n, split=split, seed=seed, progress=False)
+        for o in objs:
+            p = Path(o.source)
+            o.source = f"modelnet:{p.parent.name}/{p.name}"
+        return objs
+
+    return load
+
+
 def modelnet_test(root, categories: Sequence[str], n: int | None = None, seed: int = 0,
                   ssc: Mapping[str, CategorySSC] | None = None) -> MeshSource:
     """ModelNet10 test-split meshes (the first ``n`` per category, None: all), rescaled to a real
     size seeded per instance from ``seed``: for test scenes."""
     cats = _check(categories)
-    load = lambda c: modelnet_objects(root, c, n, split="test", seed=seed, progress=False)  # noqa: E731
-    return MeshSource(f"modelnet-test:{n}:{seed}", cats, load, _preparer(_modelnet_ssc(root, ssc), False))
+    return MeshSource(f"modelnet-test:{n}:{seed}", cats, _modelnet_load(root, "test", n, seed), _preparer(_modelnet_ssc(root, ssc), False))
 
 
 def modelnet_validation(root, categories: Sequence[str], n: int | None = None, seed: int = 0,
@@ -154,5 +167,4 @@ def modelnet_validation(root, categories: Sequence[str], n: int | None = None, s
     cats = _check(categories)
     for c in cats:  # raises when the protocol's training instances and these would overlap
         validation_instances(root, c, n, n_train=PAPER_INSTANCES[c])
-    load = lambda c: modelnet_objects(root, c, n, split="validation", seed=seed, progress=False)  # noqa: E731
-    return MeshSource(f"modelnet-validation:{n}:{seed}", cats, load, _preparer(_modelnet_ssc(root, ssc), False))
+    return MeshSource(f"modelnet-validation:{n}:{seed}", cats, _modelnet_load(root, "validation", n, seed), _preparer(_modelnet_ssc(root, ssc), False))
