@@ -153,7 +153,8 @@ def modelnet_test(root, categories: Sequence[str], n: int | None = None, seed: i
     """ModelNet10 test-split meshes (the first ``n`` per category, None: all), rescaled to a real
     size seeded per instance from ``seed``: for test scenes."""
     cats = _check(categories)
-    return MeshSource(f"modelnet-test:{n}:{seed}", cats, _modelnet_load(root, "test", n, seed), _preparer(_modelnet_ssc(root, ssc), False))
+    return MeshSource(f"modelnet-test:{n}:{seed}", cats, _modelnet_load(root, "test", n, seed),
+                      _preparer(_modelnet_ssc(root, ssc), False))
 
 
 def modelnet_validation(root, categories: Sequence[str], n: int | None = None, seed: int = 0,
@@ -167,4 +168,5 @@ def modelnet_validation(root, categories: Sequence[str], n: int | None = None, s
     cats = _check(categories)
     for c in cats:  # raises when the protocol's training instances and these would overlap
         validation_instances(root, c, n, n_train=PAPER_INSTANCES[c])
-    return MeshSource(f"modelnet-validation:{n}:{seed}", cats, _modelnet_load(root, "validation", n, seed), _preparer(_modelnet_ssc(root, ssc), False))
+    return MeshSource(f"modelnet-validation:{n}:{seed}", cats, _modelnet_load(root, "validation", n, seed),
+                      _preparer(_modelnet_ssc(root, ssc), False))
