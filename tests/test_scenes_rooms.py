@@ -14,6 +14,7 @@ import pytest
 import trimesh
 from PIL import Image
 from scipy.spatial import cKDTree
+from shapely.geometry import MultiPoint
 
 from isa.data import bop
 from isa.camera import Intrinsics
@@ -322,3 +323,27 @@ def test_noise_changes_the_depth_not_the_visibility(tmp_path, clean_root, source
     d0 = bop.read_png(bop.scene_dir(tmp_path, "test", 0) / "depth" / "000000.png")
     d1 = bop.read_png(bop.scene_dir(clean_root, "test", 0) / "depth" / "000000.png")
     assert (d0 == 0).sum() > (d1 == 0).sum() and np.abs(d0.astype(int) - d1)[(d0 > 0) & (d1 > 0)].mean() > 1
+
+
+@pytest.mark.slow
+def test_things_on_a_table_rest_on_its_top():
+    # Procedural tables have a flat top slab: an item placed on the top stands at its height,
+    # inside its footprint, and floor clutter and instances never share floor area.
+    from isa.scenes.rooms import RoomParams, make_room
+
+    src = procedural(["table"], seed=5, n=2)
+    params = RoomParams(table_clutter=(3, 3), floor_clutter=(3, 3), shelves=(1, 1))
+    placed = 0
+    for s in range(3):
+        room = make_room(np.random.default_rng([9, s]), src, (2, 2), params)
+        tops = [(i.footprint, i.world_mesh.bounds[1, 2]) for i in room.instances]
+        for kind, m in zip(room.clutter, room.clutter_meshes):
+            if kind != "table-top":
+                continue
+            lo = m.bounds[0]
+            on = [(fp, z) for fp, z in tops if fp.contains(MultiPoint([tuple(p) for p in m.vertices[:, :2]]).convex_hull)]
+            assert on and abs(lo[2] - on[0][1]) < 0.01, (lo, [z for _, z in tops])
+            placed += 1
+        fps = room.footprints
+        assert all(not a.intersects(b) for i, a in enumerate(fps) for b in fps[i + 1:])
+    assert placed >= 3

@@ -59,7 +59,8 @@ class Room:
     walls: tuple[str, ...]
     static: trimesh.Trimesh
     instances: list[Instance]
-    clutter: list[str] = field(default_factory=list)
+    clutter: list[str] = field(default_factory=list)  # the kind of each clutter item
+    clutter_meshes: list[trimesh.Trimesh] = field(default_factory=list)  # each item, world frame
     footprints: list[Polygon] = field(default_factory=list)  # everything standing on the floor
 
     def scene_mesh(self) -> trimesh.Trimesh:
@@ -299,4 +300,4 @@ def make_room(rng: np.random.Generator, source, n_instances: tuple[int, int] = (
             on_top = _table_top_items(rng, inst, n) if n else []
             items.extend(on_top)
             clutter.extend(["table-top"] * len(on_top))
-    return Room(size, walls, trimesh.util.concatenate(static + items), instances, clutter, taken)
+    return Room(size, walls, trimesh.util.concatenate(static + items), instances, clutter, items, taken)
