@@ -393,8 +393,8 @@ def write_scenes(out_root, split: str, scenes, n_frames: int, noise: KinectNoise
                     cam = spec.cameras[im_id]
                     scene, views = render_views(spec, cam, renderers)  # GL stays on this thread
 
-                    def finish(im_id=im_id, cam=cam, scene=scene, views=views, folder=folder, spec=spec):
-                        stored, found = frame_truth(scene, views, cam, renderers.factor, noise, [seed, scene_id, im_id, 2])
+                    def finish(im_id=im_id, cam=cam, scene=scene, views=views, folder=folder, spec=spec, sid=scene_id):
+                        stored, found = frame_truth(scene, views, cam, renderers.factor, noise, [seed, sid, im_id, 2])
                         folder.commit(im_id, stored, cam, spec, found)
 
                     # Noise, PNGs and JSON of this view on one worker thread (commits stay in
