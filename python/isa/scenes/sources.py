@@ -170,3 +170,13 @@ def modelnet_validation(root, categories: Sequence[str], n: int | None = None, s
         validation_instances(root, c, n, n_train=PAPER_INSTANCES[c])
     return MeshSource(f"modelnet-validation:{n}:{seed}", cats, _modelnet_load(root, "validation", n, seed),
                       _preparer(_modelnet_ssc(root, ssc), False))
+
+
+def modelnet_protocol(root, categories: Sequence[str], seed: int = 0,
+                      ssc: Mapping[str, CategorySSC] | None = None) -> MeshSource:
+    """The paper protocol's training meshes (the first train-split files, Table 1's counts), never
+    for scenes that score a model trained on them: the reference whose box-relative origins
+    :func:`isa.scenes.scan2cad.relative_origin` measures for mesh-less (Scan2CAD) objects."""
+    cats = _check(categories)
+    return MeshSource(f"modelnet-protocol:{seed}", cats, _modelnet_load(root, "train", None, seed),
+                      _preparer(_modelnet_ssc(root, ssc), False))
