@@ -119,7 +119,7 @@ def _settings(intrinsics: Intrinsics, depth_scale: float, noise: KinectNoise | N
             "noise": asdict(noise) if noise is not None else None, "views": views_id}
 
 
-def _check_settings(path: Path, settings: dict) -> None:
+def check_settings(path: Path, settings: dict) -> None:
     """Refuse to resume into a folder rendered with other settings (frames would be mixed)."""
     if path.is_file():
         old = bop.read_json(path)
@@ -181,7 +181,7 @@ def render_dataset(
         raise ValueError("render_dataset: the renderer's intrinsics differ from `intrinsics`")
     views_id = "given" if isinstance(views, Views) else ("callable" if callable(views) else f"default-fit:{n_views}:{view_seed}")
     (out_root / split).mkdir(parents=True, exist_ok=True)
-    _check_settings(out_root / split / "isa_render.json", _settings(intrinsics, depth_scale, noise, views_id))
+    check_settings(out_root / split / "isa_render.json", _settings(intrinsics, depth_scale, noise, views_id))
     _write_models(out_root, objects)
 
     per_obj = []
