@@ -20,7 +20,7 @@ from isa.privileged.annotate import (
     rotation_quaternion,
 )
 from isa.camera import KINECT_V1, Intrinsics
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 def _skeleton(seed: int = 0, n: int = 7) -> SkeletonGraph:

@@ -18,7 +18,7 @@ from isa.privileged.matching import (
 )
 from isa.data.procedural import generate
 from isa.privileged.skeleton import extract_skeleton
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 @pytest.fixture(scope="module")

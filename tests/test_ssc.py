@@ -8,7 +8,7 @@ import pytest
 
 from isa.privileged.matching import template_from_ground_truth
 from isa.data.procedural import generate
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 from isa.privileged.ssc import SSC, CategorySSC, centre_of_mass, fit_category_ssc, select_ssc
 
 

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from isa.categories import CATEGORIES
-from isa.evaluation.experiment import ExperimentConfig, run
+from isa.experiment import ExperimentConfig, run
 from isa.forest.model import ForestParams
 
 

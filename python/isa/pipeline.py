@@ -37,7 +37,7 @@ from isa.forest.training import (  # noqa: F401  (re-exported: the pipeline's tr
 from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
 from isa.evaluation.pose_metrics import average_distance, model_diameter, model_points, symmetric_average_distance
 from isa.privileged.skeleton import extract_skeleton
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 from isa.privileged.ssc import CategorySSC, centre_of_mass, select_ssc
 
 #: Procedural instances whose ground-truth skeletons define a category's template (fixed seed, so

@@ -15,7 +15,7 @@ def train_detector(category: str, objects: Sequence, views: int = 30, stride: in
     store the category box in its metadata; returns ``(forest, prepared)``.
 
     Everything is kept in memory (no BOP folder), which suits the small sets of the tests, the
-    demo and ``--train-procedural``; :mod:`isa.evaluation.experiment` is the large-scale path. ``prepared``
+    demo and ``--train-procedural``; :mod:`isa.experiment` is the large-scale path. ``prepared``
     skips the skeleton / SSC step when already done (:func:`isa.pipeline.prepare_category`).
     """
     from isa import __version__, pipeline

@@ -1,5 +1,5 @@
-"""Evaluation: pose metrics, 3D boxes and AP, the paper's published numbers, the Linemod baseline,
-and the synthetic experiment.
+"""Evaluation: pose metrics, 3D boxes, IoU, NMS and AP, the paper's published numbers and the Linemod
+baseline (the experiment that runs them all is :mod:`isa.experiment`).
 
 Public names are re-exported lazily (``lazy_loader``): importing the package loads none of its
 modules, so ``import isa.evaluation`` pulls in no OpenGL or OpenCV until a name that needs them is used.
@@ -9,7 +9,7 @@ import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(
     __name__,
-    submodules=["pose_metrics", "boxes3d", "published", "linemod", "experiment"],
+    submodules=["pose_metrics", "boxes3d", "published", "linemod"],
     submod_attrs={
         "pose_metrics": [
             "average_distance", "symmetric_average_distance", "model_points", "model_diameter", "is_correct",
@@ -26,9 +26,6 @@ __getattr__, __dir__, __all__ = _lazy.attach(
         "linemod": [
             "DEFAULT_PYRAMID", "LinemodDetector", "LinemodMatch", "LinemodRecall", "depth_to_mm",
             "linemod_recall",
-        ],
-        "experiment": [
-            "PAPER_TEST_IMAGES", "PAPER_ROW", "ExperimentConfig", "run_category", "summary_tables", "run",
         ],
     },
 )

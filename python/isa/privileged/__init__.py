@@ -9,11 +9,8 @@ import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(
     __name__,
-    submodules=["skeleton_graph", "skeleton", "matching", "ssc", "annotate", "symmetry", "mirror"],
+    submodules=["skeleton", "matching", "ssc", "annotate", "symmetry", "mirror"],
     submod_attrs={
-        "skeleton_graph": [
-            "SkeletonGraph",
-        ],
         "skeleton": [
             "sample_surface", "voxelize_solid", "extract_skeleton", "solid_centre_of_mass",
         ],

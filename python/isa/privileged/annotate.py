@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from isa.camera import Intrinsics
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 # ---------------------------------------------------------------------------------------------

@@ -34,7 +34,7 @@ from scipy.optimize import linear_sum_assignment, quadratic_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 def _bounds(bounds) -> np.ndarray:

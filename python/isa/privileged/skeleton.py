@@ -29,6 +29,9 @@ Method (chosen by measurement, see issue #3): thinning of a solid voxelisation.
    nodes lie on the skeleton and links are short straight pieces of it.
 
 Node kinds are in ``graph.meta["kind"]``: ``"end"`` (degree 1), ``"junction"`` (>= 3), ``"inner"``.
+
+Longer than 600 lines: one algorithm (the six steps above) whose private stages share the
+``_Graph`` structure; split apart they would make it a public interface for no second user.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import trimesh
 from scipy import ndimage as ndi
 from skimage.morphology import skeletonize
 
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 # 26-neighbourhood offsets (without the centre).
 _OFFSETS = np.array(

@@ -27,7 +27,7 @@ import trimesh
 
 from isa.privileged.matching import match_skeleton
 from isa.privileged.skeleton import extract_skeleton, solid_centre_of_mass
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 def centre_of_mass(mesh: trimesh.Trimesh, resolution: int = 80, seed: int = 0) -> np.ndarray:

@@ -33,7 +33,7 @@ from isa.data.meshes import prepare_mesh
 from isa.data.modelnet import list_instances, paper_instances, validation_instances
 from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.data.procedural import generate
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 from isa.render.views import Views, sample_test_views, training_views
 
 

@@ -135,7 +135,7 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     models = {o.obj_id: o.mesh for o in test.objects}
     pts = {k: model_points(m) for k, m in models.items()}
     res["symmetry"] = _symmetry_ceiling(test.objects, test_frames, pts)
-    from isa.detection import box_metadata, category_box
+    from isa.detection.category_boxes import box_metadata, category_box
 
     meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "centre": train.ssc.centre,
             "template": train.ssc.template.to_dict(),
@@ -328,7 +328,7 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
 
 def _real(cfg: ExperimentConfig, out: Path, report: Report) -> None:
     """Table 2 (right): the Q1+Q2+Q3 (else the last) forest of each category on real frames."""
-    from isa.detection import evaluate_real, load_real_frames, real_section
+    from isa.detection.real import evaluate_real, load_real_frames, real_section
 
     q = "Q1+Q2+Q3" if "Q1+Q2+Q3" in cfg.qualities else cfg.qualities[-1]
     models = {c: out / "models" / f"{c}-{q.replace('+', '')}.isa" for c in cfg.categories}
