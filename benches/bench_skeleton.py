@@ -3,9 +3,10 @@
     python benches/bench_skeleton.py [--views 89] [--stride 4] [--figures DIR]
 
 First prints, per category, the extracted skeletons' accuracy against the procedural ground truth
-(issue #3's two claims, seeds 0-11 and held-out seeds 50-57; needs no data). Then a table of wall times: the category
-template (procedural ground truth, calibrated on procedural chairs), curve-skeleton extraction, matching and the SSC (COMs + vote) for the first 28
-ModelNet10 chair train meshes at real size (the paper's protocol), then the rendering of their
+(issue #3's two claims, seeds 0-11 and held-out seeds 50-57; needs no data). Then a table of wall
+times: the category template (procedural ground truth, calibrated on procedural chairs),
+curve-skeleton extraction, matching and the SSC (COMs + vote) for the first 28 ModelNet10 chair
+train meshes at real size (the paper's protocol), then the rendering of their
 training views (another module's cost, shown for scale) and the annotation of every part of them
 (``build_training_set``), against a direct per-part Python loop on a subset as the baseline of the
 same run. ``--figures`` also writes the matched grid, the COM vs SSC figure and depth renders with
@@ -98,15 +99,15 @@ def main() -> int:
         print(f"SKIP bench_skeleton: real data not found at {mn} (set ISA_SHARED_DATA or check out ../shared)")
         return 0
 
-    from isa.privileged.annotate import Frame, build_training_set
     from isa.camera import KINECT_V1
-    from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
     from isa.data.meshes import prepare_mesh
     from isa.data.modelnet import paper_instances
     from isa.data.procedural import generate
-    from isa.render.renderer import DepthRenderer
+    from isa.privileged.annotate import Frame, build_training_set
+    from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
     from isa.privileged.skeleton import extract_skeleton
     from isa.privileged.ssc import select_ssc
+    from isa.render.renderer import DepthRenderer
     from isa.render.views import training_views
 
     rows: list[tuple[str, float, str]] = []
@@ -174,7 +175,7 @@ def main() -> int:
     print("\n| step | wall time (s) | note |\n|---|---:|---|")
     for name, dt, note in rows:
         print(f"| {name} | {dt:.2f} | {note} |")
-    print(f"\n| annotation | parts/s | x baseline |\n|---|---:|---:|")
+    print("\n| annotation | parts/s | x baseline |\n|---|---:|---:|")
     print(f"| per-part Python loop (baseline, {n_loop:,} parts) | {loop_rate:,.0f} | 1.0 |")
     print(f"| build_training_set | {vec_rate:,.0f} | {vec_rate / loop_rate:.0f} |")
     print(f"\nall {len(ts):,} parts: {t_ann:.1f} s vectorised vs {len(ts) / loop_rate:.0f} s by the loop (extrapolated)")

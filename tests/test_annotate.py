@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from isa.camera import KINECT_V1, Intrinsics
 from isa.privileged.annotate import (
     Frame,
     angle_embedding,
@@ -19,7 +20,6 @@ from isa.privileged.annotate import (
     quaternion_to_matrix,
     rotation_quaternion,
 )
-from isa.camera import KINECT_V1, Intrinsics
 from isa.skeleton_graph import SkeletonGraph
 
 

@@ -18,7 +18,6 @@ from isa.categories import CATEGORIES
 from isa.experiment import ExperimentConfig, run
 from isa.forest.model import ForestParams
 
-
 #: Real SUN RGB-D frames, when the developers' shared data sits beside the checkout: the demo then
 #: adds the real-data section (it runs fully without them).
 SHARED_SUNRGBD = Path(__file__).resolve().parents[3] / "shared" / "data" / "sunrgbd"

@@ -24,17 +24,17 @@ import numpy as np
 
 from isa import __version__, pipeline
 from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, check_category
-from isa.exceptions import DataError
 from isa.data.bop import frame_obj_ids
-from isa.privileged.mirror import find_mirror, with_mirrored
-from isa.privileged.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling
 from isa.data.modelnet import paper_instances
-from isa.render.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset
-from isa.forest.model import QUALITIES, ForestParams
 from isa.evaluation.pose_metrics import average_distance, model_points, recall_curve
 from isa.evaluation.published import POSE_RECALL
-from isa.report.report import Report
+from isa.exceptions import DataError
+from isa.forest.model import QUALITIES, ForestParams
+from isa.privileged.mirror import find_mirror, with_mirrored
 from isa.privileged.ssc import CENTRES
+from isa.privileged.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling
+from isa.render.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset
+from isa.report.report import Report
 
 PAPER_TEST_IMAGES = 264
 #: Our quality names -> the paper's row names in Table 2 (left).

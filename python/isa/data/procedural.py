@@ -157,7 +157,8 @@ def _loft(rings: list[np.ndarray], cap_start: bool = True, cap_end: bool = True,
         if use and not closed:
             verts.append(rings[ring_i].mean(0, keepdims=True))
             ring = ring_i * k + np.arange(k)
-            fan = np.stack([np.full(k, nv), np.roll(ring, -1), ring], -1) if flip else np.stack([np.full(k, nv), ring, np.roll(ring, -1)], -1)
+            fan = (np.stack([np.full(k, nv), np.roll(ring, -1), ring], -1) if flip
+                   else np.stack([np.full(k, nv), ring, np.roll(ring, -1)], -1))
             faces.append(fan)
             nv += 1
     mesh = trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
@@ -477,7 +478,8 @@ def _table(rng: np.random.Generator):
     if shape == "round":
         Wd = L = min(L, 1.4)
     Wd = min(Wd, L)  # the long side is along y, as in ModelNet10
-    base = str(rng.choice(["legs", "trestle", "pedestal"], p=[0.65, 0.15, 0.2])) if L < 1.4 else str(rng.choice(["legs", "trestle"], p=[0.8, 0.2]))
+    base = (str(rng.choice(["legs", "trestle", "pedestal"], p=[0.65, 0.15, 0.2])) if L < 1.4
+            else str(rng.choice(["legs", "trestle"], p=[0.8, 0.2])))
     if base == "trestle" and shape == "round":  # a trestle's feet would stick out of a round top
         base = "pedestal"
     p = {"kind": kind, "height": H, "length": L, "width": Wd, "top_shape": shape, "base": base,

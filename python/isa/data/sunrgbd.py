@@ -42,8 +42,8 @@ from typing import Iterator
 
 import numpy as np
 
-from isa.evaluation.boxes3d import Box3D
 from isa.camera import Intrinsics
+from isa.evaluation.boxes3d import Box3D
 from isa.exceptions import DataError
 
 __all__ = [
@@ -251,7 +251,8 @@ def _min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, float, float
 
 def _read_annotation(path: Path) -> tuple[Box3D, ...]:
     if not path.is_file():
-        raise DataError(f"{path}: missing 3D annotation (annotation3Dfinal/index.json); pass annotations=False to read the frame without boxes")
+        raise DataError(f"{path}: missing 3D annotation (annotation3Dfinal/index.json); "
+                        "pass annotations=False to read the frame without boxes")
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError) as exc:

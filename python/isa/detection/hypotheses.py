@@ -14,10 +14,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from isa.camera import Intrinsics
-from isa.evaluation.boxes3d import IOU_THRESHOLD, Box3D, box_from_pose, nms, rot_z
-from isa.exceptions import DataError
 from isa.detection.category_boxes import CategoryBox, model_box
 from isa.detection.planes import PlaneParams, PlaneRemoval, remove_planes
+from isa.evaluation.boxes3d import IOU_THRESHOLD, Box3D, box_from_pose, nms, rot_z
+from isa.exceptions import DataError
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Sequence
 
-
 from isa.detection.category_boxes import box_metadata, category_box
 
 
@@ -19,10 +18,10 @@ def train_detector(category: str, objects: Sequence, views: int = 30, stride: in
     skips the skeleton / SSC step when already done (:func:`isa.pipeline.prepare_category`).
     """
     from isa import __version__, pipeline
-    from isa.privileged.annotate import Frame, build_training_set
     from isa.camera import KINECT_V1
-    from isa.render.dataset import default_views
     from isa.forest.model import ForestParams
+    from isa.privileged.annotate import Frame, build_training_set
+    from isa.render.dataset import default_views
     from isa.render.renderer import DepthRenderer
 
     intrinsics = intrinsics or KINECT_V1

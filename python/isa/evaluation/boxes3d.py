@@ -107,8 +107,8 @@ class Box3D:
 
     def footprint(self) -> np.ndarray:
         """The 4 floor-plan corners (4, 2), counter-clockwise seen from above."""
-        l, w = self.size[0] / 2, self.size[1] / 2
-        local = np.array([[l, w], [-l, w], [-l, -w], [l, -w]])
+        hl, hw = self.size[0] / 2, self.size[1] / 2
+        local = np.array([[hl, hw], [-hl, hw], [-hl, -hw], [hl, -hw]])
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return local @ np.array([[c, s], [-s, c]]) + self.centre[:2]
 

@@ -26,7 +26,6 @@ import numpy as np
 from isa.camera import Intrinsics
 from isa.skeleton_graph import SkeletonGraph
 
-
 # ---------------------------------------------------------------------------------------------
 # Per-view geometry
 # ---------------------------------------------------------------------------------------------

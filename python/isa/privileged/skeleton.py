@@ -671,12 +671,12 @@ def _keep_largest_component(g: _Graph) -> None:
     if not parent:
         return
     size: dict[int, float] = {}
-    for a, b, p in g.br.values():
+    for a, _, p in g.br.values():
         size[find(a)] = size.get(find(a), 0.0) + g.length(p)
     if not size:
         return
     best = max(size, key=size.get)
-    for k, (a, b, _) in list(g.br.items()):
+    for k, (a, _, _) in list(g.br.items()):
         if find(a) != best:
             del g.br[k]
     for n in list(g.pos):

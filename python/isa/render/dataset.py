@@ -25,16 +25,16 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from isa.data import bop
 from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS, check_category
-from isa.exceptions import DataError
+from isa.data import bop
 from isa.data.meshes import prepare_mesh
 from isa.data.modelnet import list_instances, paper_instances, validation_instances
-from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.data.procedural import generate
-from isa.skeleton_graph import SkeletonGraph
+from isa.exceptions import DataError
+from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.render.views import Views, sample_test_views, training_views
+from isa.skeleton_graph import SkeletonGraph
 
 
 @dataclass
