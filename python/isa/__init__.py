@@ -13,21 +13,31 @@ from isa import _compat
 from isa._core import __version__
 from isa.exceptions import (
     DataError,
+    DataNotFoundError,
     InvalidInputError,
     InvalidParameterError,
+    InvalidTypeError,
+    InvalidValueError,
     IsaError,
     IsaIOError,
+    MissingDependencyError,
     ModelFormatError,
+    UsageError,
 )
 
 _compat.install()
 
 __all__ = [
     "DataError",
+    "DataNotFoundError",
     "InvalidInputError",
     "InvalidParameterError",
+    "InvalidTypeError",
+    "InvalidValueError",
     "IsaError",
     "IsaIOError",
+    "MissingDependencyError",
     "ModelFormatError",
+    "UsageError",
     "__version__",
 ]

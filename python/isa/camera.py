@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from isa.exceptions import InvalidValueError
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -25,9 +27,9 @@ class Intrinsics:
 
     def __post_init__(self) -> None:
         if not (self.fx > 0 and self.fy > 0):
-            raise ValueError(f"Intrinsics: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+            raise InvalidValueError(f"Intrinsics: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         if not (self.width > 0 and self.height > 0):
-            raise ValueError(f"Intrinsics: image size must be positive, got {self.width}x{self.height}")
+            raise InvalidValueError(f"Intrinsics: image size must be positive, got {self.width}x{self.height}")
 
     @property
     def K(self) -> np.ndarray:

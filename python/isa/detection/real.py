@@ -16,7 +16,7 @@ from isa.detection.category_boxes import CategoryBox, model_box
 from isa.detection.hypotheses import DetectionParams, _forest, detect_frame
 from isa.detection.planes import Plane
 from isa.evaluation.boxes3d import IOU_THRESHOLD, APResult, Box3D, evaluate_detections, iou_3d
-from isa.exceptions import DataError
+from isa.exceptions import DataError, InvalidValueError
 
 
 @dataclass(eq=False)
@@ -64,9 +64,9 @@ def evaluate_real(models: Mapping[str, Any], frames: Sequence, params: Detection
     (:class:`isa.data.sunrgbd.SceneFrame`) and score AP at 3D IoU >= 0.25 per category (over all frames,
     as Sliding Shapes). ``boxes`` overrides / supplies the models' category boxes."""
     if not models:
-        raise ValueError("evaluate_real: no models")
+        raise InvalidValueError("evaluate_real: no models")
     if not frames:
-        raise ValueError("evaluate_real: no frames")
+        raise InvalidValueError("evaluate_real: no frames")
     loaded, sources = {}, {}
     for cat, m in models.items():
         loaded[cat], sources[cat] = _forest(m, f"{cat} model")
