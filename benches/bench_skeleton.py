@@ -16,7 +16,6 @@ the projected skeleton. Skips, saying why, when ../shared/data is absent.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time
@@ -28,30 +27,9 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("ISA_SHARED_DATA", ROOT.parent / "shared" / "data"))
+sys.path.insert(0, str(ROOT / "tests"))  # the per-part loop baseline is the tests' reference
 
-
-def _loop_annotate(frame, stride: int, limit: int) -> int:
-    """The baseline: straightforward per-part Python code (what the vectorised version replaces)."""
-    K, R, t = frame.intrinsics, frame.R, frame.t
-    Xn = frame.skeleton.nodes @ R.T + t
-    nodes = [(K.fx * X[0] / X[2] + K.cx, K.fy * X[1] / X[2] + K.cy, X[2]) for X in Xn]
-    ssc = R @ frame.ssc + t
-    out = []
-    h, w = frame.depth.shape
-    for v in range(0, h, stride):
-        for u in range(0, w, stride):
-            if not frame.mask[v, u] or frame.depth[v, u] <= 0:
-                continue
-            z = round(float(frame.depth[v, u]) * 1000) / 1000
-            X = np.array([(u - K.cx) * z / K.fx, (v - K.cy) * z / K.fy, z])
-            s = []
-            for nu, nv, nz in nodes:
-                s += [nu - u, nv - v, nz - z]
-            angles = [math.atan2(nodes[k][1] - nodes[i][1], nodes[k][0] - nodes[i][0]) for i, k in frame.skeleton.links]
-            out.append((ssc - X, s, angles))
-            if len(out) >= limit:
-                return len(out)
-    return len(out)
+from annotate_reference import loop_annotations  # noqa: E402
 
 
 def ground_truth_table(seeds=range(12)) -> None:
@@ -167,7 +145,7 @@ def main() -> int:
     t_ann = step("annotate all parts (vectorised)", t0, f"({len(ts):,} parts, {len(tmpl.nodes)} nodes, {ts.link_angles.shape[1]} links)")
     sub = frames[:: max(1, len(frames) // 20)]
     t0 = time.perf_counter()
-    n_loop = sum(_loop_annotate(f, a.stride, 2000) for f in sub)
+    n_loop = sum(len(loop_annotations(f, a.stride, 2000)) for f in sub)
     t_loop = time.perf_counter() - t0
     loop_rate = n_loop / t_loop
     vec_rate = len(ts) / t_ann

@@ -30,7 +30,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from isa.camera import Intrinsics
+from isa.camera import Intrinsics, metres_to_mm
 from isa.exceptions import DataError, DataNotFoundError, InvalidValueError
 
 #: Largest depth a uint16 PNG holds with ``depth_scale`` = 1 (millimetres).
@@ -98,7 +98,7 @@ def depth_to_png(depth_m: np.ndarray, depth_scale: float = 1.0) -> np.ndarray:
 
     Raises ``ValueError`` when a depth does not fit in uint16 at this scale.
     """
-    v = np.rint(np.asarray(depth_m, dtype=np.float64) * (1000.0 / depth_scale))
+    v = metres_to_mm(np.asarray(depth_m, dtype=np.float64), depth_scale)
     if v.size and v.max() > MAX_DEPTH_UNITS:
         raise InvalidValueError(f"depth {v.max() * depth_scale / 1000:.2f} m exceeds uint16 at depth_scale={depth_scale}")
     return np.where(np.isfinite(v) & (v > 0), v, 0).astype(np.uint16)

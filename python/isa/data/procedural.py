@@ -60,45 +60,23 @@ from isa.skeleton_graph import SkeletonGraph
 # Skeleton templates (the same for every instance of a category)
 # ---------------------------------------------------------------------------------------------
 
-_CHAIR_NODES = [
-    "seat_centre",
-    "seat_front_left", "seat_front_right", "seat_back_left", "seat_back_right",
-    "foot_front_left", "foot_front_right", "foot_back_left", "foot_back_right",
-    "back_top_left", "back_top_right", "back_top_centre",
-]
-_CHAIR_LINKS = [
-    ("seat_centre", "seat_front_left"), ("seat_centre", "seat_front_right"),
-    ("seat_centre", "seat_back_left"), ("seat_centre", "seat_back_right"),
-    ("seat_front_left", "foot_front_left"), ("seat_front_right", "foot_front_right"),
-    ("seat_back_left", "foot_back_left"), ("seat_back_right", "foot_back_right"),
-    ("seat_back_left", "back_top_left"), ("seat_back_right", "back_top_right"),
-    ("back_top_left", "back_top_centre"), ("back_top_centre", "back_top_right"),
-]
-_BED_NODES = [
-    "mattress_centre",
-    "mattress_foot_left", "mattress_foot_right", "mattress_head_left", "mattress_head_right",
-    "floor_foot_left", "floor_foot_right", "floor_head_left", "floor_head_right",
-    "headboard_top_left", "headboard_top_right", "headboard_top_centre",
-]
-_BED_LINKS = [
-    ("mattress_centre", "mattress_foot_left"), ("mattress_centre", "mattress_foot_right"),
-    ("mattress_centre", "mattress_head_left"), ("mattress_centre", "mattress_head_right"),
-    ("mattress_foot_left", "floor_foot_left"), ("mattress_foot_right", "floor_foot_right"),
-    ("mattress_head_left", "floor_head_left"), ("mattress_head_right", "floor_head_right"),
-    ("mattress_head_left", "headboard_top_left"), ("mattress_head_right", "headboard_top_right"),
-    ("headboard_top_left", "headboard_top_centre"), ("headboard_top_centre", "headboard_top_right"),
-]
-_TABLE_NODES = [
-    "top_centre",
-    "top_front_left", "top_front_right", "top_back_left", "top_back_right",
-    "foot_front_left", "foot_front_right", "foot_back_left", "foot_back_right",
-]
-_TABLE_LINKS = [
-    ("top_centre", "top_front_left"), ("top_centre", "top_front_right"),
-    ("top_centre", "top_back_left"), ("top_centre", "top_back_right"),
-    ("top_front_left", "foot_front_left"), ("top_front_right", "foot_front_right"),
-    ("top_back_left", "foot_back_left"), ("top_back_right", "foot_back_right"),
-]
+def _legged_template(slab: str, foot: str, top: str | None = None, front: str = "front", back: str = "back"):
+    """A slab's centre and four corners, a foot under each corner and, with ``top``, the top
+    corners and centre of a back (headboard) rising from the slab's back corners: the one
+    topology of chairs, beds and tables, with the category's names."""
+    sides = [f"{front}_left", f"{front}_right", f"{back}_left", f"{back}_right"]
+    nodes = [f"{slab}_centre", *(f"{slab}_{s}" for s in sides), *(f"{foot}_{s}" for s in sides)]
+    links = [*((f"{slab}_centre", f"{slab}_{s}") for s in sides), *((f"{slab}_{s}", f"{foot}_{s}") for s in sides)]
+    if top is not None:
+        nodes += [f"{top}_left", f"{top}_right", f"{top}_centre"]
+        links += [(f"{slab}_{back}_left", f"{top}_left"), (f"{slab}_{back}_right", f"{top}_right"),
+                  (f"{top}_left", f"{top}_centre"), (f"{top}_centre", f"{top}_right")]
+    return nodes, links
+
+
+_CHAIR_NODES, _CHAIR_LINKS = _legged_template("seat", "foot", top="back_top")
+_BED_NODES, _BED_LINKS = _legged_template("mattress", "floor", top="headboard_top", front="foot", back="head")
+_TABLE_NODES, _TABLE_LINKS = _legged_template("top", "foot")
 _TOILET_NODES = [
     "rim_centre", "rim_front", "rim_left", "rim_right", "rim_back",
     "floor_front", "floor_back",

@@ -57,7 +57,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from isa.camera import KINECT_V1, Intrinsics
+from isa.camera import KINECT_V1, Intrinsics, metres_to_mm
 from isa.exceptions import InvalidTypeError, InvalidValueError, MissingDependencyError
 
 __all__ = [
@@ -103,7 +103,7 @@ def depth_to_mm(depth: np.ndarray, name: str = "depth") -> np.ndarray:
     d = np.where(np.isfinite(d), d, 0.0)
     if (d < 0).any():
         raise InvalidValueError(f"{name}: negative depth values (min {float(d.min()):.3f} m)")
-    mm = np.rint(d * 1000.0)
+    mm = metres_to_mm(d)
     if mm.max(initial=0) > 65535:
         raise InvalidValueError(f"{name}: depth beyond 65.535 m (max {float(d.max()):.1f} m); is it in millimetres?")
     return mm.astype(np.uint16)

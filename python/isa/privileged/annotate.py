@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from isa.camera import Intrinsics
+from isa.camera import Intrinsics, metres_to_mm
 from isa.exceptions import InvalidTypeError, InvalidValueError
 from isa.skeleton_graph import SkeletonGraph
 
@@ -268,7 +268,7 @@ def build_training_set(
         crop_list.append((u0, v0))
         d = depth[v0:v1, u0:u1]
         fg = mask[v0:v1, u0:u1] & (d > 0) & np.isfinite(d)
-        mm = np.rint(np.where(fg, d, 0) * 1000.0)
+        mm = metres_to_mm(np.where(fg, d, 0))
         crop = np.ascontiguousarray(np.clip(mm, 0, 65535).astype(np.uint16))
         images.append(crop)
         # Grid in full-image coordinates: the first grid row/column at or after the crop origin.
