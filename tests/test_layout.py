@@ -111,10 +111,13 @@ def test_old_flat_paths_alias_the_new_modules_and_warn():
     assert _compat.new_name("isa.pipeline") is None and _compat.new_name("numpy") is None
 
 
-def test_old_module_runs_as_main_through_the_alias():
+def test_old_commands_still_run():
     r = _run("", "-W", "default::DeprecationWarning", "-m", "isa.dataset", "--help")
     assert r.returncode == 0, r.stderr
     assert "usage: python -m isa dataset" in r.stdout and "isa.dataset moved to isa.render.dataset" in r.stderr
+    r = _run("", "-m", "isa.detection", "--help")
+    assert r.returncode == 0, r.stderr
+    assert "usage: python -m isa detect-real" in r.stdout and "python -m isa detect-real" in r.stderr
 
 
 def _module_level_imports(name: str, path: Path, known: set[str]) -> set[str]:
