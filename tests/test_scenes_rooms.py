@@ -16,12 +16,12 @@ from PIL import Image
 from scipy.spatial import cKDTree
 from shapely.geometry import MultiPoint
 
-from isa.data import bop
 from isa.camera import Intrinsics
+from isa.data import bop
 from isa.scenes import read_scene_dataset
 from isa.scenes.cameras import Camera, CameraRig, camera_pose
 from isa.scenes.sources import procedural
-from isa.scenes.writer import Placement, SceneFolder, SceneSpec, make_scenes, ray_factor, render_frame, _Renderers
+from isa.scenes.writer import Placement, SceneFolder, SceneSpec, _Renderers, make_scenes, ray_factor, render_frame
 
 SMALL = Intrinsics(fx=291.3, fy=291.3, cx=159.77, cy=119.62, width=320, height=240)
 RIG = CameraRig(intrinsics=SMALL, distance=(1.5, 3.0))
@@ -217,8 +217,8 @@ def test_cameras_stand_and_look_as_people_hold_them(clean_root):
 @pytest.mark.slow
 def test_modelnet_sources_test_and_validation_split(shared_data, tmp_path):
     from isa.data.modelnet import paper_instances, validation_instances
-    from isa.scenes.sources import modelnet_test, modelnet_validation
     from isa.privileged.ssc import centre_of_mass
+    from isa.scenes.sources import modelnet_test, modelnet_validation
 
     mn = shared_data / "modelnet10"
     test = modelnet_test(mn, ["chair"], n=2)

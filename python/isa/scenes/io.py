@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from isa.data import bop
 from isa.camera import Intrinsics
+from isa.data import bop
 from isa.exceptions import DataError
 
 #: ``GroundTruth.symmetries`` of an object with a continuous turn symmetry about its z axis.

@@ -16,12 +16,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 from shapely import affinity
-from shapely.geometry import MultiPoint, Point, Polygon, box as shapely_box
+from shapely.geometry import MultiPoint, Point, Polygon
+from shapely.geometry import box as shapely_box
 
 from isa.camera import Intrinsics
 from isa.evaluation.boxes3d import rot_z
-from isa.render.dataset import ObjectSpec, hull_points
 from isa.exceptions import InvalidParameterError
+from isa.render.dataset import ObjectSpec, hull_points
 
 WALL_HEIGHT = 2.6
 WALL_THICKNESS = 0.1

@@ -38,10 +38,10 @@ from scipy.spatial.transform import Rotation
 from shapely.geometry import MultiPoint, Point
 
 from isa.exceptions import DataError
+from isa.privileged.symmetry import YawSymmetry
 from isa.render.noise import KinectNoise
 from isa.scenes.cameras import CameraRig, sample_camera
 from isa.scenes.writer import Placement, SceneObject, SceneSpec, check_settings, output_split, write_scenes
-from isa.privileged.symmetry import YawSymmetry
 
 #: ShapeNet category ids of the objects kept, and their category.
 CATEGORIES = {"03001627": "chair", "04379243": "table"}

@@ -18,11 +18,11 @@ from pathlib import Path
 
 from isa import pipeline
 from isa.categories import CENTRE, check_category
-from isa.render.dataset import ObjectSpec, modelnet_objects, procedural_objects
 from isa.exceptions import DataError
 from isa.privileged.matching import template_from_ground_truth
 from isa.privileged.skeleton_graph import SkeletonGraph
 from isa.privileged.ssc import CategorySSC, centre_of_mass, select_ssc
+from isa.render.dataset import ObjectSpec, modelnet_objects, procedural_objects
 
 #: Procedural instances per category in a procedural source.
 PROCEDURAL_INSTANCES = 6

@@ -32,15 +32,15 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
-from isa.data import bop
 from isa.camera import Intrinsics
+from isa.data import bop
+from isa.exceptions import DataError
+from isa.privileged.symmetry import YawSymmetry, find_yaw_symmetry
 from isa.render.dataset import ObjectSpec, RenderSummary, hull_points
 from isa.render.dataset import check_settings as render_dataset_check
-from isa.exceptions import DataError
 from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.scenes.cameras import Camera, CameraRig, sample_camera
 from isa.scenes.rooms import Room, RoomParams, make_room
-from isa.privileged.symmetry import YawSymmetry, find_yaw_symmetry
 
 #: bop_toolkit's visibility tolerance (calc_gt_info.py ``delta``), millimetres.
 DELTA_MM = 15.0
