@@ -20,9 +20,9 @@ from isa import pipeline
 from isa.categories import CENTRE, check_category
 from isa.exceptions import DataError
 from isa.privileged.matching import template_from_ground_truth
-from isa.skeleton_graph import SkeletonGraph
 from isa.privileged.ssc import CategorySSC, centre_of_mass, select_ssc
 from isa.render.dataset import ObjectSpec, modelnet_objects, procedural_objects
+from isa.skeleton_graph import SkeletonGraph
 
 #: Procedural instances per category in a procedural source.
 PROCEDURAL_INSTANCES = 6
