@@ -65,8 +65,8 @@ def build_detector(objects, renderer, n_views: int = 89, seed: int = 0, distance
     """One LinemodDetector holding ``n_views`` training views of every object in ``objects``:
     the dataset's training views (``isa.render.dataset.default_views``, 1.5-4 m), or with ``distance``
     (min, max) metres the same directions at distances drawn from that range."""
-    from isa.render.dataset import default_views, hull_points
     from isa.evaluation.linemod import LinemodDetector
+    from isa.render.dataset import default_views, hull_points
     from isa.render.views import training_views
 
     det = LinemodDetector(renderer.intrinsics, **params)

@@ -45,11 +45,11 @@ def main() -> int:
 
     from isa import detection as D
     from isa.camera import KINECT_V1
-    from isa.render.dataset import default_test_views, procedural_objects
+    from isa.data.sunrgbd import read_processed
     from isa.forest.model import Forest, ForestParams
     from isa.pipeline import predict
+    from isa.render.dataset import default_test_views, procedural_objects
     from isa.render.renderer import DepthRenderer
-    from isa.data.sunrgbd import read_processed
 
     frame = read_processed(proc, "000001")
     t0 = time.perf_counter()
@@ -74,12 +74,14 @@ def main() -> int:
     kw = dict(stride=a.stride, max_hypotheses=p.max_hypotheses)
     rows = [
         ("vote, synthetic 640x480 (baseline)", _median_s(lambda: predict(forest, synth, KINECT_V1, **kw), a.repeats)),
-        ("floor removal only", _median_s(lambda: D.remove_planes(frame.depth, frame.intrinsics, frame.R_gravity, p.planes, walls=False), a.repeats)),
+        ("floor removal only",
+         _median_s(lambda: D.remove_planes(frame.depth, frame.intrinsics, frame.R_gravity, p.planes, walls=False), a.repeats)),
         ("floor + wall removal", _median_s(lambda: D.remove_planes(frame.depth, frame.intrinsics, frame.R_gravity, p.planes), a.repeats)),
         ("vote, raw real depth", _median_s(lambda: predict(forest, frame.depth, frame.intrinsics, **kw), a.repeats)),
         ("vote, planes removed", _median_s(lambda: predict(forest, planes.depth, frame.intrinsics, **kw), a.repeats)),
         ("boxes + NMS (planes given)", None),
-        ("detect total (planes + vote + boxes)", _median_s(lambda: D.detect(forest, frame.depth, frame.intrinsics, frame.R_gravity, box, p), a.repeats)),
+        ("detect total (planes + vote + boxes)",
+         _median_s(lambda: D.detect(forest, frame.depth, frame.intrinsics, frame.R_gravity, box, p), a.repeats)),
     ]
     det = D.detect(forest, frame.depth, frame.intrinsics, frame.R_gravity, box, p, planes=planes)
     rows[5] = (rows[5][0], det.seconds["boxes"])

@@ -51,8 +51,8 @@ def main() -> int:
         return 0
 
     from isa.camera import KINECT_V1
-    from isa.render.dataset import modelnet_objects, render_dataset
     from isa.data.meshes import prepare_mesh
+    from isa.render.dataset import modelnet_objects, render_dataset
     from isa.render.renderer import DepthRenderer
     from isa.render.views import training_views
 
@@ -71,7 +71,7 @@ def main() -> int:
     fps_ray = _raycast_fps(mesh, views, K, max(10, a.frames // 10))
 
     print(f"\nrendering throughput, {K.width}x{K.height}, {path.name} ({len(mesh.faces)} faces), {os.cpu_count()} cores")
-    print(f"| method | frames/s | ms/frame | ratio |\n|---|---:|---:|---:|")
+    print("| method | frames/s | ms/frame | ratio |\n|---|---:|---:|---:|")
     print(f"| exact ray casting (embreex, baseline) | {fps_ray:.1f} | {1000 / fps_ray:.1f} | 1.0 |")
     print(f"| pyrender depth+mask (isa.render.renderer) | {fps:.1f} | {1000 / fps:.1f} | {fps / fps_ray:.1f} |")
     print(f"(first frame incl. GL context and upload: {t_ctx * 1000:.0f} ms)")

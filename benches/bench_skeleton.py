@@ -3,9 +3,10 @@
     python benches/bench_skeleton.py [--views 89] [--stride 4] [--figures DIR]
 
 First prints, per category, the extracted skeletons' accuracy against the procedural ground truth
-(issue #3's two claims, seeds 0-11 and held-out seeds 50-57; needs no data). Then a table of wall times: the category
-template (procedural ground truth, calibrated on procedural chairs), curve-skeleton extraction, matching and the SSC (COMs + vote) for the first 28
-ModelNet10 chair train meshes at real size (the paper's protocol), then the rendering of their
+(issue #3's two claims, seeds 0-11 and held-out seeds 50-57; needs no data). Then a table of wall
+times: the category template (procedural ground truth, calibrated on procedural chairs),
+curve-skeleton extraction, matching and the SSC (COMs + vote) for the first 28 ModelNet10 chair
+train meshes at real size (the paper's protocol), then the rendering of their
 training views (another module's cost, shown for scale) and the annotation of every part of them
 (``build_training_set``), against a direct per-part Python loop on a subset as the baseline of the
 same run. ``--figures`` also writes the matched grid, the COM vs SSC figure and depth renders with
@@ -15,7 +16,6 @@ the projected skeleton. Skips, saying why, when ../shared/data is absent.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time
@@ -27,30 +27,9 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("ISA_SHARED_DATA", ROOT.parent / "shared" / "data"))
+sys.path.insert(0, str(ROOT / "tests"))  # the per-part loop baseline is the tests' reference
 
-
-def _loop_annotate(frame, stride: int, limit: int) -> int:
-    """The baseline: straightforward per-part Python code (what the vectorised version replaces)."""
-    K, R, t = frame.intrinsics, frame.R, frame.t
-    Xn = frame.skeleton.nodes @ R.T + t
-    nodes = [(K.fx * X[0] / X[2] + K.cx, K.fy * X[1] / X[2] + K.cy, X[2]) for X in Xn]
-    ssc = R @ frame.ssc + t
-    out = []
-    h, w = frame.depth.shape
-    for v in range(0, h, stride):
-        for u in range(0, w, stride):
-            if not frame.mask[v, u] or frame.depth[v, u] <= 0:
-                continue
-            z = round(float(frame.depth[v, u]) * 1000) / 1000
-            X = np.array([(u - K.cx) * z / K.fx, (v - K.cy) * z / K.fy, z])
-            s = []
-            for nu, nv, nz in nodes:
-                s += [nu - u, nv - v, nz - z]
-            angles = [math.atan2(nodes[k][1] - nodes[i][1], nodes[k][0] - nodes[i][0]) for i, k in frame.skeleton.links]
-            out.append((ssc - X, s, angles))
-            if len(out) >= limit:
-                return len(out)
-    return len(out)
+from annotate_reference import loop_annotations  # noqa: E402
 
 
 def ground_truth_table(seeds=range(12)) -> None:
@@ -98,15 +77,15 @@ def main() -> int:
         print(f"SKIP bench_skeleton: real data not found at {mn} (set ISA_SHARED_DATA or check out ../shared)")
         return 0
 
-    from isa.privileged.annotate import Frame, build_training_set
     from isa.camera import KINECT_V1
-    from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
     from isa.data.meshes import prepare_mesh
     from isa.data.modelnet import paper_instances
     from isa.data.procedural import generate
-    from isa.render.renderer import DepthRenderer
+    from isa.privileged.annotate import Frame, build_training_set
+    from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
     from isa.privileged.skeleton import extract_skeleton
     from isa.privileged.ssc import select_ssc
+    from isa.render.renderer import DepthRenderer
     from isa.render.views import training_views
 
     rows: list[tuple[str, float, str]] = []
@@ -166,7 +145,7 @@ def main() -> int:
     t_ann = step("annotate all parts (vectorised)", t0, f"({len(ts):,} parts, {len(tmpl.nodes)} nodes, {ts.link_angles.shape[1]} links)")
     sub = frames[:: max(1, len(frames) // 20)]
     t0 = time.perf_counter()
-    n_loop = sum(_loop_annotate(f, a.stride, 2000) for f in sub)
+    n_loop = sum(len(loop_annotations(f, a.stride, 2000)) for f in sub)
     t_loop = time.perf_counter() - t0
     loop_rate = n_loop / t_loop
     vec_rate = len(ts) / t_ann
@@ -174,7 +153,7 @@ def main() -> int:
     print("\n| step | wall time (s) | note |\n|---|---:|---|")
     for name, dt, note in rows:
         print(f"| {name} | {dt:.2f} | {note} |")
-    print(f"\n| annotation | parts/s | x baseline |\n|---|---:|---:|")
+    print("\n| annotation | parts/s | x baseline |\n|---|---:|---:|")
     print(f"| per-part Python loop (baseline, {n_loop:,} parts) | {loop_rate:,.0f} | 1.0 |")
     print(f"| build_training_set | {vec_rate:,.0f} | {vec_rate / loop_rate:.0f} |")
     print(f"\nall {len(ts):,} parts: {t_ann:.1f} s vectorised vs {len(ts) / loop_rate:.0f} s by the loop (extrapolated)")

@@ -57,7 +57,8 @@ N_LINKS, N_NODES, K = 18, 11, 16
 _SK = np.random.default_rng(12345)
 #: A few instance skeletons of N_NODES nodes (object frame, metres) and N_LINKS links.
 SKELETONS = [_SK.normal(0.0, 0.3, (N_NODES, 3)) for _ in range(8)]
-LINKS = np.array([(i, i + 1) for i in range(N_NODES - 1)] + [tuple(_SK.choice(N_NODES, 2, replace=False)) for _ in range(N_LINKS - N_NODES + 1)])
+LINKS = np.array([(i, i + 1) for i in range(N_NODES - 1)]
+                 + [tuple(_SK.choice(N_NODES, 2, replace=False)) for _ in range(N_LINKS - N_NODES + 1)])
 
 
 def quat_to_matrix(q):
@@ -349,7 +350,8 @@ f = _core.Forest(**json.loads(sys.argv[2]))
 t0 = time.perf_counter(); c0 = time.process_time()
 f.fit(images, d["parts"], d["off"], d["rot"], d["la"], d["no"], "{}")
 t = time.perf_counter() - t0
-print(json.dumps({"seconds": t, "cpu_seconds": time.process_time() - c0, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+print(json.dumps({"seconds": t, "cpu_seconds": time.process_time() - c0,
+                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "nodes": sum(f.n_nodes), "depths": f.depths}))
 """
 
@@ -431,7 +433,8 @@ def bench_reduction_effect(args):
     print("the largest Q1 gain any k found; splits equal to the full-dimension choice; search time")
     print(f"{'k':>6s} {'full gain ratio':>22s} {'Q1 gain ratio':>14s} {'same split':>11s} {'search s':>9s}")
     for k in ks:
-        print(f"{(k or 'full'):>6} {np.mean(ratios[k]):8.3f} (min {np.min(ratios[k]):.3f}) {np.mean(q1[k]):14.3f} {same[k]:7d}/{trials} {times[k]:9.2f}")
+        print(f"{(k or 'full'):>6} {np.mean(ratios[k]):8.3f} (min {np.min(ratios[k]):.3f}) {np.mean(q1[k]):14.3f} "
+              f"{same[k]:7d}/{trials} {times[k]:9.2f}")
 
 
 def main():

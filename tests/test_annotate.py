@@ -3,12 +3,12 @@ vectorised training set against direct per-part loops and analytic geometry."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from annotate_reference import loop_annotations
+from isa.camera import KINECT_V1, Intrinsics
 from isa.privileged.annotate import (
     Frame,
     angle_embedding,
@@ -19,8 +19,7 @@ from isa.privileged.annotate import (
     quaternion_to_matrix,
     rotation_quaternion,
 )
-from isa.camera import KINECT_V1, Intrinsics
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 def _skeleton(seed: int = 0, n: int = 7) -> SkeletonGraph:
@@ -71,31 +70,6 @@ def test_link_angles_known_directions_and_wrap():
     assert np.linalg.norm(e[0:2] - e[2:4]) < 1e-8
 
 
-def _loop_annotations(frame: Frame, stride: int, margin: int):
-    """Straightforward per-part loop (the reference): returns the same quantities as build_training_set."""
-    K, R, t = frame.intrinsics, frame.R, frame.t
-    Xn = frame.skeleton.nodes @ R.T + t
-    nodes = [(K.fx * X[0] / X[2] + K.cx, K.fy * X[1] / X[2] + K.cy, X[2]) for X in Xn]
-    angles = []
-    for i, k in frame.skeleton.links:
-        angles.append(math.atan2(nodes[k][1] - nodes[i][1], nodes[k][0] - nodes[i][0]))
-    angles = [a - 2 * math.pi if a >= math.pi else a for a in angles]
-    ssc = R @ frame.ssc + t
-    out = []
-    h, w = frame.depth.shape
-    for v in range(0, h, stride):
-        for u in range(0, w, stride):
-            if not frame.mask[v, u] or frame.depth[v, u] <= 0:
-                continue
-            z = round(float(frame.depth[v, u]) * 1000) / 1000
-            X = np.array([(u - K.cx) * z / K.fx, (v - K.cy) * z / K.fy, z])
-            s = []
-            for nu, nv, nz in nodes:
-                s += [nu - u, nv - v, nz - z]
-            out.append((u, v, ssc - X, s))
-    return angles, out
-
-
 def test_training_set_matches_per_part_loop():
     sk = _skeleton(3)
     R = Rotation.from_euler("zyx", [170, 10, -5], degrees=True).as_matrix()
@@ -108,17 +82,17 @@ def test_training_set_matches_per_part_loop():
     assert ts.parts.dtype == np.int32 and ts.offsets.dtype == np.float32 and ts.node_offsets.dtype == np.float32
     P = 0
     for fi, f in enumerate(frames):
-        angles, ref = _loop_annotations(f, 5, 6)
+        ref = loop_annotations(f, 5)
         sel = ts.parts[:, 0] == fi
         assert sel.sum() == len(ref)
         u0, v0 = ts.crops[fi]
         got_uv = ts.parts[sel, 1:] + [u0, v0]
-        assert got_uv.tolist() == [[u, v] for u, v, _, _ in ref]
+        assert got_uv.tolist() == [[u, v] for u, v, *_ in ref]
         # Every part lies on the foreground of its crop.
         assert np.all(ts.images[fi][ts.parts[sel, 2], ts.parts[sel, 1]] > 0)
-        np.testing.assert_allclose(ts.offsets[sel], np.array([o for _, _, o, _ in ref]), atol=1e-5)
-        np.testing.assert_allclose(ts.node_offsets[sel], np.array([s for _, _, _, s in ref]), atol=2e-3, rtol=1e-5)
-        np.testing.assert_allclose(ts.link_angles[sel], np.tile(angles, (sel.sum(), 1)), atol=1e-5)
+        np.testing.assert_allclose(ts.offsets[sel], np.array([r[2] for r in ref]), atol=1e-5)
+        np.testing.assert_allclose(ts.node_offsets[sel], np.array([r[3] for r in ref]), atol=2e-3, rtol=1e-5)
+        np.testing.assert_allclose(ts.link_angles[sel], np.array([r[4] for r in ref]), atol=1e-5)
         q = Rotation.from_matrix(f.R).as_quat()  # scipy: (x, y, z, w)
         q = np.r_[q[3], q[:3]] * (1 if q[3] >= 0 else -1)
         np.testing.assert_allclose(ts.rotations[sel], np.tile(q, (sel.sum(), 1)), atol=1e-6)

@@ -11,8 +11,8 @@ import trimesh
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from isa.data import bop
 from isa.camera import Intrinsics
+from isa.data import bop
 from isa.exceptions import DataError
 
 K = Intrinsics(fx=575.8, fy=576.3, cx=319.5, cy=239.5, width=64, height=48)
@@ -39,7 +39,7 @@ def test_round_trip_is_exact(tmp_path):
     assert bop.list_scenes(tmp_path, "train") == [7]
     assert bop.list_frames(tmp_path, "train", 7) == [0, 5, 10]
     back = bop.read_scene(tmp_path, "train", 7)
-    for (depth, mask, R, t, mm), f in zip(frames, back):
+    for (depth, mask, R, t, _), f in zip(frames, back):
         np.testing.assert_array_equal(f.depth, depth)  # bit-exact float32
         np.testing.assert_array_equal(f.mask, mask)
         np.testing.assert_array_equal(f.R, R)  # JSON keeps a float's exact repr

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from isa.data import bop
 from isa.camera import KINECT_V1
-from isa.render.dataset import ObjectSpec, default_test_views, default_views, hull_points, main, procedural_objects, render_dataset
+from isa.data import bop
 from isa.exceptions import DataError
-from isa.report.figures.renders import bop_contact_sheet
+from isa.render.dataset import ObjectSpec, default_test_views, default_views, hull_points, main, procedural_objects, render_dataset
 from isa.render.noise import KinectNoise
 from isa.render.renderer import DepthRenderer
 from isa.render.views import fit_distance, look_at, sample_test_views, training_views
+from isa.report.figures.renders import bop_contact_sheet
 
 
 def _dirs(views):

@@ -12,10 +12,10 @@ import pytest
 import trimesh
 
 from isa import detection as D
-from isa.evaluation.boxes3d import Box3D, iou_3d
 from isa.camera import KINECT_V1, Intrinsics
-from isa.exceptions import DataError
 from isa.data.sunrgbd import UPRIGHT_FROM_CAMERA_AXES
+from isa.evaluation.boxes3d import Box3D, iou_3d
+from isa.exceptions import DataError
 
 
 def rot_z(a):
@@ -170,8 +170,8 @@ def test_remove_planes_checks_its_arguments():
 @pytest.fixture(scope="module")
 def chair_model():
     """A tiny chair forest trained on renders of 3 procedural chairs (20 views each)."""
-    from isa.render.dataset import procedural_objects
     from isa.forest.model import ForestParams
+    from isa.render.dataset import procedural_objects
 
     objs = procedural_objects("chair", 3, seed=7)
     forest, prepared = D.train_detector(
@@ -181,8 +181,8 @@ def chair_model():
 
 
 def test_end_to_end_on_a_rendered_chair_on_a_floor(chair_model):
-    from isa.render.dataset import procedural_objects
     from isa.pipeline import prepare_category
+    from isa.render.dataset import procedural_objects
     from isa.render.renderer import DepthRenderer
     from isa.render.views import look_at
 

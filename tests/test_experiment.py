@@ -12,7 +12,7 @@ import trimesh
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from isa.evaluation import experiment  # noqa: E402
+from isa import experiment  # noqa: E402
 from isa.forest.model import Forest  # noqa: E402
 
 

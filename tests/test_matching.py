@@ -8,6 +8,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from isa.data.procedural import generate
 from isa.privileged.matching import (
     calibrate_template,
     match_graphs_qap,
@@ -16,9 +17,8 @@ from isa.privileged.matching import (
     template_from_ground_truth,
     template_from_instances,
 )
-from isa.data.procedural import generate
 from isa.privileged.skeleton import extract_skeleton
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 @pytest.fixture(scope="module")
@@ -136,7 +136,10 @@ def test_qap_recovers_a_permuted_weighted_graph():
     B = np.zeros_like(A)
     B[np.ix_(perm, perm)] = A
     found = match_graphs_qap(A, B, n_init=6)
-    score = lambda p: float((A * B[np.ix_(p, p)]).sum())
+
+    def score(p):
+        return float((A * B[np.ix_(p, p)]).sum())
+
     # A chair is left/right symmetric, so without seeds any optimum is acceptable ...
     assert score(found) == pytest.approx(score(perm))
     # ... and two seed pairs on one side fix the symmetry: exact recovery.

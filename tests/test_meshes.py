@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from isa.categories import CATEGORIES, PAPER_INSTANCES, PAPER_VIEWS, SIZES, check_category
-from isa.exceptions import DataError
 from isa.data.meshes import MESH_EXTENSIONS, load_mesh, object_origin, prepare_mesh, real_size_scale, rescale_to_real_size
+from isa.exceptions import DataError
 
 
 def _box(extents=(1.0, 2.0, 3.0), offset=(0.5, -1.0, 2.0)) -> trimesh.Trimesh:
@@ -92,8 +92,8 @@ def test_object_origin_is_bbox_centre():
 def test_rescale_lands_in_real_range(category):
     # Proportions of a plausible instance: a scale exists meeting both ranges.
     s = SIZES[category]
-    h, l = np.mean(s.height), np.mean(s.length)
-    box = _box(extents=(0.7 * l * 37, l * 37, h * 37))  # arbitrary units, like ModelNet
+    h, length = np.mean(s.height), np.mean(s.length)
+    box = _box(extents=(0.7 * length * 37, length * 37, h * 37))  # arbitrary units, like ModelNet
     seen = set()
     for seed in range(20):
         m, scale = rescale_to_real_size(box, category, seed)

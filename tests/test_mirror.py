@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from isa.data.bop import BopFrame
 from isa.camera import KINECT_V1
+from isa.data.bop import BopFrame
+from isa.data.procedural import generate
 from isa.exceptions import InvalidParameterError
 from isa.privileged.mirror import find_mirror, mirrored_frame, with_mirrored
-from isa.data.procedural import generate
 from isa.render.renderer import render_depth
 from isa.render.views import look_at
 

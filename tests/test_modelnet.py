@@ -7,8 +7,8 @@ import os
 
 import pytest
 
-from isa.exceptions import DataError
 from isa.data.modelnet import find_root, list_instances, paper_instances, validation_instances
+from isa.exceptions import DataError
 
 # Counts and name ranges from ../shared/data/README.md (independent of the adapter).
 REAL = {

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from isa import pipeline
-from isa.privileged.annotate import TrainingSet
 from isa.exceptions import DataError
+from isa.privileged.annotate import TrainingSet
 
 
 def _training_set(offsets: np.ndarray) -> TrainingSet:
@@ -45,11 +45,10 @@ def test_empty_training_set_is_a_data_error():
 
 
 def test_predict_reads_the_models_defaults_and_explicit_parameters_win():
-    from test_vote import K, plate, plate_training_set
-
     from isa import _core
     from isa.camera import Intrinsics
     from isa.forest.model import Forest, ForestParams
+    from test_vote import K, plate, plate_training_set
 
     images, parts, offsets, rotations = plate_training_set()
     f = Forest(ForestParams(n_trees=2, max_depth=10, n_candidates=30, max_offset=60.0, quality="Q1"))

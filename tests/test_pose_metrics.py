@@ -122,9 +122,9 @@ def test_symmetric_distance_of_a_small_shift_on_a_dense_line_is_the_perpendicula
     # them left uncovered at one end (mean distance s / 2 there): s^2 / 4 in all; one along y
     # costs its length.
     X = np.stack([np.linspace(-1, 1, 20001), np.zeros(20001), np.zeros(20001)], 1)
-    I, t = np.eye(3), np.zeros(3)
-    assert symmetric_average_distance(X, I, t, I, t + [0.05, 0.0, 0.0]) == pytest.approx(0.05**2 / 4, rel=1e-2)
-    assert symmetric_average_distance(X, I, t, I, t + [0.0, 0.05, 0.0]) == pytest.approx(0.05, rel=1e-6)
+    eye, t = np.eye(3), np.zeros(3)
+    assert symmetric_average_distance(X, eye, t, eye, t + [0.05, 0.0, 0.0]) == pytest.approx(0.05**2 / 4, rel=1e-2)
+    assert symmetric_average_distance(X, eye, t, eye, t + [0.0, 0.05, 0.0]) == pytest.approx(0.05, rel=1e-6)
 
 
 def test_symmetric_distance_never_exceeds_the_plain_one(cloud):

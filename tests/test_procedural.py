@@ -9,8 +9,8 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from isa.categories import CATEGORIES, SIZES
-from isa.exceptions import DataError
 from isa.data.procedural import SKELETON_TEMPLATES, generate, generate_many, template
+from isa.exceptions import DataError
 from isa.privileged.skeleton import voxelize_solid
 
 N = 24  # instances per category checked

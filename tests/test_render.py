@@ -9,8 +9,8 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from isa.camera import KINECT_V1, Intrinsics
-from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.data.procedural import generate
+from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.render.renderer import DepthRenderer
 from isa.render.views import training_views
 

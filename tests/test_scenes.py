@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from isa.evaluation.boxes3d import Box3D
 from isa.camera import Intrinsics
-from isa.report.figures.scenes import box_edges_image, scene_figure
 from isa.data.sunrgbd import UPRIGHT_FROM_CAMERA_AXES, SceneFrame
+from isa.evaluation.boxes3d import Box3D
+from isa.report.figures.scenes import box_edges_image, scene_figure
 
 K = Intrinsics(fx=500.0, fy=500.0, cx=159.5, cy=119.5, width=320, height=240)
 

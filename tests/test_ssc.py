@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from isa.privileged.matching import template_from_ground_truth
 from isa.data.procedural import generate
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.privileged.matching import template_from_ground_truth
 from isa.privileged.ssc import SSC, CategorySSC, centre_of_mass, fit_category_ssc, select_ssc
+from isa.skeleton_graph import SkeletonGraph
 
 
 def _instances(nearest: list[int], n_nodes: int = 5, seed: int = 0, unmatched=None):
@@ -86,7 +86,8 @@ def test_category_ssc_on_procedural_chairs(tmp_path):
     np.testing.assert_allclose(CategorySSC.load(tmp_path / "chair_ssc.json").origin(unseen.mesh), origin)
     # The COMs are those of the solids (within a couple of voxels of trimesh's exact volume COM
     # for the watertight pieces the procedural chair is built from).
-    exact = np.array(sum(p.volume * p.center_mass for p in unseen.mesh.split(only_watertight=False)) / sum(p.volume for p in unseen.mesh.split(only_watertight=False)))
+    pieces = unseen.mesh.split(only_watertight=False)
+    exact = np.array(sum(p.volume * p.center_mass for p in pieces) / sum(p.volume for p in pieces))
     assert np.linalg.norm(centre_of_mass(unseen.mesh) - exact) < 0.03
 
 
@@ -116,8 +117,8 @@ def test_box_centre_origin(tmp_path):
 
 
 def test_prepare_category_moves_the_chosen_origin_to_zero():
-    from isa.render.dataset import procedural_objects
     from isa.pipeline import prepare_category
+    from isa.render.dataset import procedural_objects
 
     objs = procedural_objects("toilet", 3, seed=5)
     for centre in ("ssc", "com", "box"):

@@ -12,8 +12,6 @@ import pytest
 from PIL import Image
 from scipy.io import loadmat, savemat
 
-from isa.evaluation.boxes3d import Box3D
-from isa.exceptions import DataError
 from isa.data.sunrgbd import (
     UPRIGHT_FROM_CAMERA_AXES,
     decode_sun_depth,
@@ -22,6 +20,8 @@ from isa.data.sunrgbd import (
     read_native,
     read_processed,
 )
+from isa.evaluation.boxes3d import Box3D
+from isa.exceptions import DataError
 
 NATIVE = Path("sunrgbd/SUNRGBD/kv1/b3dodata/img_0063")
 PROCESSED = Path("sunrgbd/sunrgbd_trainval")

@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from isa.data.bop import BopFrame
 from isa.camera import KINECT_V1
-from isa.exceptions import InvalidParameterError
-from isa.evaluation.pose_metrics import model_diameter, model_points
-from isa.render.renderer import render_depth
+from isa.data.bop import BopFrame
 from isa.evaluation.boxes3d import rot_z
-from isa.privileged.symmetry import (YawSymmetry, canonical_frames, canonical_pose, common_subgroup, find_yaw_symmetry,
-                          recall_ceiling)
+from isa.evaluation.pose_metrics import model_diameter, model_points
+from isa.exceptions import InvalidParameterError
+from isa.privileged.symmetry import YawSymmetry, canonical_frames, canonical_pose, common_subgroup, find_yaw_symmetry, recall_ceiling
+from isa.render.renderer import render_depth
 from isa.render.views import look_at
 
 OFFSET = np.array([0.21, -0.13, 0.4])  # the symmetry axis is not the object frame's z axis

@@ -1,9 +1,9 @@
-"""Old flat module paths (``isa.bop``, ``isa.experiment``, ...) kept for one release.
+"""Old flat module paths (``isa.bop``, ``isa.dataset``, ...) kept for one release.
 
 Before the package was split into subpackages every module sat directly under ``isa``. A finder on
 ``sys.meta_path`` answers an import of an old path with the module at its new path (the same module
 object, so state and ``isinstance`` checks are shared) and a ``DeprecationWarning`` naming the new
-path. ``python -m isa.experiment`` and ``python -m isa.dataset`` keep working through it too.
+path. ``python -m isa.dataset`` keeps working through it too.
 Names that are now subpackages (``isa.forest``, ``isa.render``, ``isa.report``, ``isa.detection``)
 need no alias: the subpackage re-exports what the old module held.
 """
@@ -22,7 +22,6 @@ MOVED = {
     "bop": "isa.data.bop",
     "boxes3d": "isa.evaluation.boxes3d",
     "dataset": "isa.render.dataset",
-    "experiment": "isa.evaluation.experiment",
     "figures": "isa.report.figures",
     "linemod": "isa.evaluation.linemod",
     "matching": "isa.privileged.matching",
@@ -34,7 +33,6 @@ MOVED = {
     "procedural": "isa.data.procedural",
     "published": "isa.evaluation.published",
     "skeleton": "isa.privileged.skeleton",
-    "skeleton_graph": "isa.privileged.skeleton_graph",
     "ssc": "isa.privileged.ssc",
     "sunrgbd": "isa.data.sunrgbd",
     "symmetry": "isa.privileged.symmetry",

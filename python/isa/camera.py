@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from isa.exceptions import InvalidValueError
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -25,9 +27,9 @@ class Intrinsics:
 
     def __post_init__(self) -> None:
         if not (self.fx > 0 and self.fy > 0):
-            raise ValueError(f"Intrinsics: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+            raise InvalidValueError(f"Intrinsics: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         if not (self.width > 0 and self.height > 0):
-            raise ValueError(f"Intrinsics: image size must be positive, got {self.width}x{self.height}")
+            raise InvalidValueError(f"Intrinsics: image size must be positive, got {self.width}x{self.height}")
 
     @property
     def K(self) -> np.ndarray:
@@ -54,3 +56,11 @@ class Intrinsics:
 
 #: Microsoft Kinect v1 depth camera at 640x480 (the NYU Depth v2 calibration).
 KINECT_V1 = Intrinsics(fx=582.62, fy=582.69, cx=313.04, cy=238.44, width=640, height=480)
+
+
+def metres_to_mm(depth, depth_scale: float = 1.0) -> np.ndarray:
+    """Depth in metres -> the nearest integer depth unit (``unit * depth_scale`` = millimetres), as
+    floats of the input's dtype, neither clipped nor checked: the one rounding that the core's
+    uint16 millimetre images, BOP depth PNGs and Linemod's input share (callers clip or refuse
+    out-of-range values their own way)."""
+    return np.rint(depth * (1000.0 / depth_scale))

@@ -15,9 +15,8 @@ import time
 from pathlib import Path
 
 from isa.categories import CATEGORIES
-from isa.evaluation.experiment import ExperimentConfig, run
+from isa.experiment import ExperimentConfig, run
 from isa.forest.model import ForestParams
-
 
 #: Real SUN RGB-D frames, when the developers' shared data sits beside the checkout: the demo then
 #: adds the real-data section (it runs fully without them).

@@ -7,8 +7,14 @@
 * ``InvalidParameterError`` — a hyper-parameter failed validation;
 * ``ModelFormatError`` — a model file is truncated, corrupted, foreign or newer;
 * ``IsaIOError`` — an operating-system I/O failure on a named file;
-* ``DataError`` (Python side) — a data file or folder is missing, empty, corrupt or in the
-  wrong layout.
+* ``DataError`` (Python side) — a data file or folder is empty, corrupt or in the wrong layout;
+  ``DataNotFoundError`` when it is missing (also ``FileNotFoundError``).
+
+The Python side's own argument checks raise ``InvalidValueError`` / ``InvalidTypeError``
+(``InvalidInputError`` that is also ``ValueError`` / ``TypeError``), ``MissingDependencyError``
+(also ``ImportError``) for an optional dependency that is not installed, and ``UsageError`` (also
+``RuntimeError``) for an object used in a state that forbids it. Each is also the builtin that
+code written before isa had its own errors catches.
 """
 
 from __future__ import annotations
@@ -26,11 +32,36 @@ class DataError(IsaError, ValueError):
     """A data file or folder is missing, empty, corrupt or in the wrong layout (names it)."""
 
 
+class DataNotFoundError(DataError, FileNotFoundError):
+    """A data file or folder does not exist (names it)."""
+
+
+class InvalidValueError(InvalidInputError, ValueError):
+    """An argument checked on the Python side has the wrong value or shape (names the argument)."""
+
+
+class InvalidTypeError(InvalidInputError, TypeError):
+    """An argument checked on the Python side has the wrong type (names the argument)."""
+
+
+class MissingDependencyError(IsaError, ImportError):
+    """An optional dependency is not installed (names the package to install)."""
+
+
+class UsageError(IsaError, RuntimeError):
+    """An object is used in a state that forbids it (a renderer after ``close()``)."""
+
+
 __all__ = [
     "DataError",
+    "DataNotFoundError",
     "InvalidInputError",
     "InvalidParameterError",
+    "InvalidTypeError",
+    "InvalidValueError",
     "IsaError",
     "IsaIOError",
+    "MissingDependencyError",
     "ModelFormatError",
+    "UsageError",
 ]

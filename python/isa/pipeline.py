@@ -17,10 +17,10 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
-from isa.data import bop
 from isa.camera import Intrinsics
 from isa.categories import CENTRE
-from isa.render.dataset import ObjectSpec, procedural_objects
+from isa.data import bop
+from isa.evaluation.pose_metrics import average_distance, model_diameter, model_points, symmetric_average_distance
 from isa.exceptions import DataError
 from isa.forest.model import Forest
 from isa.forest.training import (  # noqa: F401  (re-exported: the pipeline's training steps)
@@ -35,10 +35,10 @@ from isa.forest.training import (  # noqa: F401  (re-exported: the pipeline's tr
     training_set,
 )
 from isa.privileged.matching import calibrate_template, match_skeleton, template_from_ground_truth
-from isa.evaluation.pose_metrics import average_distance, model_diameter, model_points, symmetric_average_distance
 from isa.privileged.skeleton import extract_skeleton
-from isa.privileged.skeleton_graph import SkeletonGraph
 from isa.privileged.ssc import CategorySSC, centre_of_mass, select_ssc
+from isa.render.dataset import ObjectSpec, procedural_objects
+from isa.skeleton_graph import SkeletonGraph
 
 #: Procedural instances whose ground-truth skeletons define a category's template (fixed seed, so
 #: every run and every user gets the same template).

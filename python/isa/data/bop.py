@@ -30,8 +30,8 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from isa.camera import Intrinsics
-from isa.exceptions import DataError
+from isa.camera import Intrinsics, metres_to_mm
+from isa.exceptions import DataError, DataNotFoundError, InvalidValueError
 
 #: Largest depth a uint16 PNG holds with ``depth_scale`` = 1 (millimetres).
 MAX_DEPTH_UNITS = 65535
@@ -66,7 +66,7 @@ def read_json(path: str | Path):
     """Read a JSON file; ``DataError`` naming the file when it is missing or corrupt."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"BOP file not found: {path}")
+        raise DataNotFoundError(f"BOP file not found: {path}")
     try:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -82,7 +82,7 @@ def write_png(path: Path, array: np.ndarray) -> None:
 def read_png(path: Path) -> np.ndarray:
     """Read a PNG; ``DataError`` naming it when missing or corrupt."""
     if not path.is_file():
-        raise DataError(f"BOP image not found: {path}")
+        raise DataNotFoundError(f"BOP image not found: {path}")
     try:
         with Image.open(path) as im:
             return np.asarray(im)
@@ -100,9 +100,9 @@ def depth_to_png(depth_m: np.ndarray, depth_scale: float = 1.0) -> np.ndarray:
 
     Raises ``ValueError`` when a depth does not fit in uint16 at this scale.
     """
-    v = np.rint(np.asarray(depth_m, dtype=np.float64) * (1000.0 / depth_scale))
+    v = metres_to_mm(np.asarray(depth_m, dtype=np.float64), depth_scale)
     if v.size and v.max() > MAX_DEPTH_UNITS:
-        raise ValueError(f"depth {v.max() * depth_scale / 1000:.2f} m exceeds uint16 at depth_scale={depth_scale}")
+        raise InvalidValueError(f"depth {v.max() * depth_scale / 1000:.2f} m exceeds uint16 at depth_scale={depth_scale}")
     return np.where(np.isfinite(v) & (v > 0), v, 0).astype(np.uint16)
 
 
@@ -273,7 +273,7 @@ def list_scenes(root: str | Path, split: str) -> list[int]:
     """Scene ids present under ``<root>/<split>`` (folders with a ``scene_gt.json``)."""
     d = Path(root) / split
     if not d.is_dir():
-        raise DataError(f"BOP split folder not found: {d}")
+        raise DataNotFoundError(f"BOP split folder not found: {d}")
     return sorted(int(p.name) for p in d.iterdir() if p.is_dir() and p.name.isdigit() and (p / "scene_gt.json").is_file())
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import trimesh
 
 from isa.categories import size_range
-from isa.exceptions import DataError
+from isa.exceptions import DataError, DataNotFoundError
 
 #: File extensions accepted by :func:`load_mesh` (lower case, with the dot).
 MESH_EXTENSIONS: tuple[str, ...] = (".off", ".obj", ".ply", ".stl", ".glb")
@@ -28,7 +28,7 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     """
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"mesh file not found: {path}")
+        raise DataNotFoundError(f"mesh file not found: {path}")
     ext = path.suffix.lower()
     if ext not in MESH_EXTENSIONS:
         raise DataError(f"mesh file {path}: unsupported extension {ext!r}; expected one of {', '.join(MESH_EXTENSIONS)}")

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from isa.categories import CATEGORIES, PAPER_INSTANCES, check_category
-from isa.exceptions import DataError
+from isa.exceptions import DataError, DataNotFoundError
 
 SPLITS: tuple[str, ...] = ("train", "test")
 
@@ -29,7 +29,7 @@ def find_root(root: str | Path) -> Path:
     """The ModelNet10 folder at or directly under ``root``; ``DataError`` naming ``root`` if neither."""
     root = Path(root)
     if not root.is_dir():
-        raise DataError(f"ModelNet10 root not found: {root}")
+        raise DataNotFoundError(f"ModelNet10 root not found: {root}")
     for cand in (root, root / "ModelNet10"):
         if any((cand / c).is_dir() for c in CATEGORIES):
             return cand
@@ -48,7 +48,7 @@ def list_instances(root: str | Path, category: str, split: str = "train") -> lis
     base = find_root(root)
     folder = base / category / split
     if not folder.is_dir():
-        raise DataError(f"ModelNet10 folder not found: {folder}")
+        raise DataNotFoundError(f"ModelNet10 folder not found: {folder}")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".off" and p.is_file())
     return [Instance(category, split, p.stem, p) for p in files]
 

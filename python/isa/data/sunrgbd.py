@@ -42,9 +42,9 @@ from typing import Iterator
 
 import numpy as np
 
-from isa.evaluation.boxes3d import Box3D
 from isa.camera import Intrinsics
-from isa.exceptions import DataError
+from isa.evaluation.boxes3d import Box3D
+from isa.exceptions import DataError, DataNotFoundError
 
 __all__ = [
     "SceneFrame",
@@ -110,7 +110,7 @@ class SceneFrame:
 
 def _load_matrix(path: Path, n: int, what: str) -> np.ndarray:
     if not path.is_file():
-        raise DataError(f"{path}: missing {what}")
+        raise DataNotFoundError(f"{path}: missing {what}")
     try:
         values = np.array(path.read_text().split(), dtype=float)
     except ValueError as exc:
@@ -251,7 +251,8 @@ def _min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, float, float
 
 def _read_annotation(path: Path) -> tuple[Box3D, ...]:
     if not path.is_file():
-        raise DataError(f"{path}: missing 3D annotation (annotation3Dfinal/index.json); pass annotations=False to read the frame without boxes")
+        raise DataNotFoundError(f"{path}: missing 3D annotation (annotation3Dfinal/index.json); "
+                        "pass annotations=False to read the frame without boxes")
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
@@ -287,7 +288,7 @@ def read_native(folder: str | Path, filled: bool = False, annotations: bool = Tr
     """
     folder = Path(folder)
     if not folder.is_dir():
-        raise DataError(f"{folder}: SUN RGB-D frame folder not found")
+        raise DataNotFoundError(f"{folder}: SUN RGB-D frame folder not found")
     depth_path = _first_file(folder / ("depth_bfx" if filled else "depth"), "*.png", "depth PNG")
     depth = decode_sun_depth(_read_png16(depth_path), depth_path)
     K = _load_matrix(folder / "intrinsics.txt", 9, "intrinsics (3x3)").reshape(3, 3)
@@ -313,7 +314,7 @@ def list_native(root: str | Path) -> list[Path]:
     """All native frame folders under ``root`` (folders holding an ``intrinsics.txt``), sorted."""
     root = Path(root)
     if not root.is_dir():
-        raise DataError(f"{root}: SUN RGB-D folder not found")
+        raise DataNotFoundError(f"{root}: SUN RGB-D folder not found")
     return sorted(p.parent for p in root.rglob("intrinsics.txt"))
 
 
@@ -327,7 +328,7 @@ def _frame_id(index: int | str) -> str:
 
 def _read_points(path: Path) -> np.ndarray:
     if not path.is_file():
-        raise DataError(f"{path}: missing point cloud")
+        raise DataNotFoundError(f"{path}: missing point cloud")
     from scipy.io import loadmat
 
     try:
@@ -347,7 +348,7 @@ def _read_points(path: Path) -> np.ndarray:
 
 def _read_labels(path: Path) -> tuple[Box3D, ...]:
     if not path.is_file():
-        raise DataError(f"{path}: missing label file")
+        raise DataNotFoundError(f"{path}: missing label file")
     boxes = []
     for ln, line in enumerate(path.read_text().splitlines(), 1):
         tokens = line.split()

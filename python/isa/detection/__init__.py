@@ -30,35 +30,27 @@ average precision at 3D IoU >= 0.25 (:mod:`isa.evaluation.boxes3d`, the metric o
     python -m isa detect-real --train-procedural 6 --categories chair bed --data ../shared/data/sunrgbd --out out/real
 
 All 3D quantities of boxes and planes are in the frame's upright frame (z up, camera at the
-origin; see :mod:`isa.data.sunrgbd`).
+origin; see :mod:`isa.data.sunrgbd`)."""
 
-Public names are re-exported lazily (``lazy_loader``): importing the package loads none of its
-modules, so ``import isa.detection`` pulls in no OpenGL or OpenCV until a name that needs them is used.
-"""
+from isa._reexport import lazy_reexport
 
-import lazy_loader as _lazy
-
-__getattr__, __dir__, __all__ = _lazy.attach(
-    __name__,
-    submodules=["planes", "category_boxes", "hypotheses", "training", "real", "cli"],
-    submod_attrs={
-        "planes": [
-            "PlaneParams", "Plane", "find_planes", "PlaneRemoval", "remove_planes",
-        ],
-        "category_boxes": [
-            "CategoryBox", "category_box", "box_metadata", "model_box",
-        ],
-        "hypotheses": [
-            "DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect", "detect_frame",
-        ],
-        "training": [
-            "train_detector",
-        ],
-        "real": [
-            "RealResult", "evaluate_real", "load_real_frames", "real_section",
-        ],
-        "cli": [
-            "main",
-        ],
-    },
-)
+__getattr__, __dir__, __all__ = lazy_reexport(__name__, {
+    "planes": [
+        "PlaneParams", "Plane", "find_planes", "PlaneRemoval", "remove_planes",
+    ],
+    "category_boxes": [
+        "CategoryBox", "category_box", "box_metadata", "model_box",
+    ],
+    "hypotheses": [
+        "DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect", "detect_frame",
+    ],
+    "training": [
+        "train_detector",
+    ],
+    "real": [
+        "RealResult", "evaluate_real", "load_real_frames", "real_section",
+    ],
+    "cli": [
+        "main",
+    ],
+})

@@ -8,7 +8,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from isa.exceptions import DataError
+from isa.exceptions import DataError, InvalidValueError
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,9 +29,9 @@ class CategoryBox:
         size = np.asarray(self.size, dtype=float).reshape(-1)
         off = np.asarray(self.ssc_offset, dtype=float).reshape(-1)
         if size.shape != (3,) or off.shape != (3,) or not (np.all(np.isfinite(size)) and np.all(np.isfinite(off))):
-            raise ValueError(f"CategoryBox({self.category!r}): size and ssc_offset need 3 finite values, got {size}, {off}")
+            raise InvalidValueError(f"CategoryBox({self.category!r}): size and ssc_offset need 3 finite values, got {size}, {off}")
         if np.any(size <= 0):
-            raise ValueError(f"CategoryBox({self.category!r}): sizes must be positive, got {size}")
+            raise InvalidValueError(f"CategoryBox({self.category!r}): sizes must be positive, got {size}")
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "ssc_offset", off)
 
@@ -64,7 +64,7 @@ def category_box(objects, category: str | None = None) -> CategoryBox:
     if category is None:
         category = getattr(objects[0], "category", None)
     if category is None:
-        raise ValueError("category_box: pass category= when giving bare meshes")
+        raise InvalidValueError("category_box: pass category= when giving bare meshes")
     bounds = np.array([np.asarray(m.bounds, dtype=float) for m in meshes])  # (n, 2, 3)
     size = np.median(bounds[:, 1] - bounds[:, 0], axis=0)
     offset = np.median(-(bounds[:, 0] + bounds[:, 1]) / 2, axis=0)  # SSC (origin) minus box centre

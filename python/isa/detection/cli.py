@@ -8,7 +8,6 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-
 from isa.categories import CATEGORIES
 from isa.detection.hypotheses import DetectionParams
 from isa.detection.real import _fmt_ap, evaluate_real, load_real_frames, real_section
@@ -50,8 +49,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from isa.render.dataset import procedural_objects
     from isa.forest.model import ForestParams
+    from isa.render.dataset import procedural_objects
     from isa.report.report import Report
 
     a = parser().parse_args(argv)

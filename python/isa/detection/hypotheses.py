@@ -14,10 +14,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from isa.camera import Intrinsics
-from isa.evaluation.boxes3d import IOU_THRESHOLD, Box3D, box_from_pose, nms, rot_z
-from isa.exceptions import DataError
 from isa.detection.category_boxes import CategoryBox, model_box
 from isa.detection.planes import PlaneParams, PlaneRemoval, remove_planes
+from isa.evaluation.boxes3d import IOU_THRESHOLD, Box3D, box_from_pose, nms, rot_z
+from isa.exceptions import DataError, DataNotFoundError
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,7 @@ def _forest(model, source: str | None = None):
     if isinstance(model, (str, os.PathLike)):
         path = Path(model)
         if not path.is_file():
-            raise DataError(f"{path}: model file not found")
+            raise DataNotFoundError(f"{path}: model file not found")
         return Forest.load(path), str(path)
     return model, source or "model"
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from isa.camera import Intrinsics
+from isa.exceptions import InvalidValueError
 
 
 @dataclass(frozen=True)
@@ -193,7 +194,7 @@ def find_planes(points: np.ndarray, depth: np.ndarray, params: PlaneParams = Pla
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     depth = np.asarray(depth, dtype=float).reshape(-1)
     if len(points) != len(depth):
-        raise ValueError(f"find_planes: {len(points)} points but {len(depth)} depths")
+        raise InvalidValueError(f"find_planes: {len(points)} points but {len(depth)} depths")
     rng = np.random.default_rng(params.seed)
     tol = _tolerance(depth, params)
     labels = np.full(len(points), -1, dtype=np.int64)
@@ -242,9 +243,9 @@ def remove_planes(depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarr
     """
     depth = np.asarray(depth, dtype=np.float32)
     if depth.ndim != 2:
-        raise ValueError(f"remove_planes: depth must be (H, W), got {depth.shape}")
+        raise InvalidValueError(f"remove_planes: depth must be (H, W), got {depth.shape}")
     if depth.shape != (intrinsics.height, intrinsics.width):
-        raise ValueError(f"remove_planes: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
+        raise InvalidValueError(f"remove_planes: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
                          f"{intrinsics.width}x{intrinsics.height}")
     Rg = np.asarray(R_gravity, dtype=float).reshape(3, 3)
     valid = depth > 0

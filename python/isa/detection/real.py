@@ -12,11 +12,11 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from isa.categories import CATEGORIES
-from isa.evaluation.boxes3d import IOU_THRESHOLD, APResult, Box3D, evaluate_detections, iou_3d
-from isa.exceptions import DataError
 from isa.detection.category_boxes import CategoryBox, model_box
 from isa.detection.hypotheses import DetectionParams, _forest, detect_frame
 from isa.detection.planes import Plane
+from isa.evaluation.boxes3d import IOU_THRESHOLD, APResult, Box3D, evaluate_detections, iou_3d
+from isa.exceptions import DataError, InvalidValueError
 
 
 @dataclass(eq=False)
@@ -64,9 +64,9 @@ def evaluate_real(models: Mapping[str, Any], frames: Sequence, params: Detection
     (:class:`isa.data.sunrgbd.SceneFrame`) and score AP at 3D IoU >= 0.25 per category (over all frames,
     as Sliding Shapes). ``boxes`` overrides / supplies the models' category boxes."""
     if not models:
-        raise ValueError("evaluate_real: no models")
+        raise InvalidValueError("evaluate_real: no models")
     if not frames:
-        raise ValueError("evaluate_real: no frames")
+        raise InvalidValueError("evaluate_real: no frames")
     loaded, sources = {}, {}
     for cat, m in models.items():
         loaded[cat], sources[cat] = _forest(m, f"{cat} model")
@@ -117,8 +117,8 @@ def real_section(report, result: RealResult, frames: Sequence, label: str = "ISA
     the paper's Table 2 (right) with the published numbers, per-frame figures (predicted boxes
     green, ground truth red, over the depth image and in a top view), a per-detection table, and
     the numbers in ``report.results["real"]`` (also returned)."""
-    from isa.report.figures.scenes import scene_figure
     from isa.evaluation.published import DETECTION_AP, PRINTED_MEANS
+    from isa.report.figures.scenes import scene_figure
 
     gt = [f.boxes for f in frames]
     data = result.to_dict(gt)

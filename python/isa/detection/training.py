@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Sequence
 
-
 from isa.detection.category_boxes import box_metadata, category_box
 
 
@@ -15,14 +14,14 @@ def train_detector(category: str, objects: Sequence, views: int = 30, stride: in
     store the category box in its metadata; returns ``(forest, prepared)``.
 
     Everything is kept in memory (no BOP folder), which suits the small sets of the tests, the
-    demo and ``--train-procedural``; :mod:`isa.evaluation.experiment` is the large-scale path. ``prepared``
+    demo and ``--train-procedural``; :mod:`isa.experiment` is the large-scale path. ``prepared``
     skips the skeleton / SSC step when already done (:func:`isa.pipeline.prepare_category`).
     """
     from isa import __version__, pipeline
-    from isa.privileged.annotate import Frame, build_training_set
     from isa.camera import KINECT_V1
-    from isa.render.dataset import default_views
     from isa.forest.model import ForestParams
+    from isa.privileged.annotate import Frame, build_training_set
+    from isa.render.dataset import default_views
     from isa.render.renderer import DepthRenderer
 
     intrinsics = intrinsics or KINECT_V1

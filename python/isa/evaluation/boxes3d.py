@@ -32,6 +32,8 @@ from typing import Sequence
 
 import numpy as np
 
+from isa.exceptions import InvalidValueError
+
 __all__ = [
     "Box3D",
     "APResult",
@@ -79,11 +81,11 @@ class Box3D:
         centre = np.asarray(self.centre, dtype=float).reshape(-1)
         size = np.asarray(self.size, dtype=float).reshape(-1)
         if centre.shape != (3,) or size.shape != (3,):
-            raise ValueError(f"Box3D: centre and size must have 3 values, got {centre.shape}, {size.shape}")
+            raise InvalidValueError(f"Box3D: centre and size must have 3 values, got {centre.shape}, {size.shape}")
         if not (np.all(np.isfinite(centre)) and np.all(np.isfinite(size)) and math.isfinite(self.yaw)):
-            raise ValueError(f"Box3D: non-finite centre/size/yaw ({centre}, {size}, {self.yaw})")
+            raise InvalidValueError(f"Box3D: non-finite centre/size/yaw ({centre}, {size}, {self.yaw})")
         if np.any(size <= 0):
-            raise ValueError(f"Box3D: sizes must be positive, got {size}")
+            raise InvalidValueError(f"Box3D: sizes must be positive, got {size}")
         centre.flags.writeable = False
         size.flags.writeable = False
         object.__setattr__(self, "centre", centre)
@@ -107,8 +109,8 @@ class Box3D:
 
     def footprint(self) -> np.ndarray:
         """The 4 floor-plan corners (4, 2), counter-clockwise seen from above."""
-        l, w = self.size[0] / 2, self.size[1] / 2
-        local = np.array([[l, w], [-l, w], [-l, -w], [l, -w]])
+        hl, hw = self.size[0] / 2, self.size[1] / 2
+        local = np.array([[hl, hw], [-hl, hw], [-hl, -hw], [hl, -hw]])
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return local @ np.array([[c, s], [-s, c]]) + self.centre[:2]
 
@@ -281,7 +283,7 @@ def voc_ap(recall: np.ndarray, precision: np.ndarray, interpolation: str = "area
             p = precision[recall >= r - 1e-12]
             ap += (p.max() if p.size else 0.0) / 11
         return float(ap)
-    raise ValueError(f"voc_ap: interpolation must be 'area' or '11point', got {interpolation!r}")
+    raise InvalidValueError(f"voc_ap: interpolation must be 'area' or '11point', got {interpolation!r}")
 
 
 def average_precision(
@@ -297,12 +299,12 @@ def average_precision(
     ``category`` is used). Detections need a ``score``; equal scores keep the input order.
     """
     if len(detections) != len(ground_truth):
-        raise ValueError(f"average_precision: {len(detections)} detection lists for {len(ground_truth)} frames")
+        raise InvalidValueError(f"average_precision: {len(detections)} detection lists for {len(ground_truth)} frames")
     gts = [[g for g in frame if g.category == category] for frame in ground_truth]
     dets = [(d.score, f, d) for f, frame in enumerate(detections) for d in frame if d.category == category]
     n_gt = sum(len(g) for g in gts)
     if any(not math.isfinite(s) for s, _, _ in dets):
-        raise ValueError(f"average_precision: non-finite detection scores for {category!r}")
+        raise InvalidValueError(f"average_precision: non-finite detection scores for {category!r}")
     # Stable sort: ties keep the order of the input (frame, then position).
     dets = sorted(dets, key=lambda x: -x[0])
     matched = [np.zeros(len(g), dtype=bool) for g in gts]

@@ -57,7 +57,8 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from isa.camera import KINECT_V1, Intrinsics
+from isa.camera import KINECT_V1, Intrinsics, metres_to_mm
+from isa.exceptions import InvalidTypeError, InvalidValueError, MissingDependencyError
 
 __all__ = [
     "DEFAULT_PYRAMID",
@@ -77,11 +78,11 @@ def _cv2():
     try:
         import cv2
     except ImportError as e:  # pragma: no cover - depends on the environment
-        raise ImportError(
+        raise MissingDependencyError(
             "isa.evaluation.linemod needs OpenCV's contrib modules: pip install opencv-contrib-python-headless"
         ) from e
     if not hasattr(cv2, "linemod"):  # pragma: no cover
-        raise ImportError(
+        raise MissingDependencyError(
             "isa.evaluation.linemod: this OpenCV build has no cv2.linemod (install opencv-contrib-python-headless, "
             "not opencv-python)"
         )
@@ -96,15 +97,15 @@ def depth_to_mm(depth: np.ndarray, name: str = "depth") -> np.ndarray:
     """
     d = np.asarray(depth)
     if d.ndim != 2:
-        raise ValueError(f"{name}: expected a 2D depth image (H, W) in metres, got shape {d.shape}")
+        raise InvalidValueError(f"{name}: expected a 2D depth image (H, W) in metres, got shape {d.shape}")
     if not np.issubdtype(d.dtype, np.floating):
-        raise ValueError(f"{name}: expected float depth in metres, got dtype {d.dtype} (convert mm to m first)")
+        raise InvalidValueError(f"{name}: expected float depth in metres, got dtype {d.dtype} (convert mm to m first)")
     d = np.where(np.isfinite(d), d, 0.0)
     if (d < 0).any():
-        raise ValueError(f"{name}: negative depth values (min {float(d.min()):.3f} m)")
-    mm = np.rint(d * 1000.0)
+        raise InvalidValueError(f"{name}: negative depth values (min {float(d.min()):.3f} m)")
+    mm = metres_to_mm(d)
     if mm.max(initial=0) > 65535:
-        raise ValueError(f"{name}: depth beyond 65.535 m (max {float(d.max()):.1f} m); is it in millimetres?")
+        raise InvalidValueError(f"{name}: depth beyond 65.535 m (max {float(d.max()):.1f} m); is it in millimetres?")
     return mm.astype(np.uint16)
 
 
@@ -142,18 +143,18 @@ class _Template:
 def _as_rotation(R, name: str) -> np.ndarray:
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3) or not np.isfinite(R).all():
-        raise ValueError(f"{name}: expected a finite 3x3 rotation matrix, got shape {R.shape}")
+        raise InvalidValueError(f"{name}: expected a finite 3x3 rotation matrix, got shape {R.shape}")
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
-        raise ValueError(f"{name}: not a rotation matrix (R R^T != I or det(R) < 0)")
+        raise InvalidValueError(f"{name}: not a rotation matrix (R R^T != I or det(R) < 0)")
     return R
 
 
 def _as_translation(t, name: str) -> np.ndarray:
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     if t.shape != (3,) or not np.isfinite(t).all():
-        raise ValueError(f"{name}: expected a finite 3-vector in metres, got shape {np.shape(t)}")
+        raise InvalidValueError(f"{name}: expected a finite 3-vector in metres, got shape {np.shape(t)}")
     if t[2] <= 0:
-        raise ValueError(f"{name}: the object origin must be in front of the camera (t_z > 0), got t_z={t[2]}")
+        raise InvalidValueError(f"{name}: the object origin must be in front of the camera (t_z > 0), got t_z={t[2]}")
     return t
 
 
@@ -183,7 +184,7 @@ class LinemodDetector:
         anchor_points: int = 256,
     ) -> None:
         if not isinstance(intrinsics, Intrinsics):
-            raise TypeError(f"intrinsics: expected isa.camera.Intrinsics, got {type(intrinsics).__name__}")
+            raise InvalidTypeError(f"intrinsics: expected isa.camera.Intrinsics, got {type(intrinsics).__name__}")
         for name, value in (
             ("distance_threshold_mm", distance_threshold_mm),
             ("difference_threshold_mm", difference_threshold_mm),
@@ -192,10 +193,10 @@ class LinemodDetector:
             ("anchor_points", anchor_points),
         ):
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name}: expected a positive integer, got {value!r}")
+                raise InvalidValueError(f"{name}: expected a positive integer, got {value!r}")
         pyramid = tuple(pyramid)
         if not pyramid or not all(isinstance(T, (int, np.integer)) and T >= 1 for T in pyramid):
-            raise ValueError(f"pyramid: expected a non-empty sequence of positive integer steps, got {pyramid!r}")
+            raise InvalidValueError(f"pyramid: expected a non-empty sequence of positive integer steps, got {pyramid!r}")
         cv2 = _cv2()
         self.intrinsics = intrinsics
         self.params = dict(
@@ -230,7 +231,7 @@ class LinemodDetector:
         masks = [None] * len(depths) if masks is None else list(masks)
         lengths = {"depths": len(depths), "masks": len(masks), "rotations": len(rotations), "translations": len(translations)}
         if len(set(lengths.values())) != 1:
-            raise ValueError(f"from_views: depths, masks, rotations and translations differ in length: {lengths}")
+            raise InvalidValueError(f"from_views: depths, masks, rotations and translations differ in length: {lengths}")
         for d, m, R, t in zip(depths, masks, rotations, translations):
             det.add_view(d, m, R, t)
         return det
@@ -264,7 +265,7 @@ class LinemodDetector:
         mm = depth_to_mm(depth, name)
         shape = (self.intrinsics.height, self.intrinsics.width)
         if mm.shape != shape:
-            raise ValueError(f"{name}: shape {mm.shape} does not match the intrinsics' image size {shape} (H, W)")
+            raise InvalidValueError(f"{name}: shape {mm.shape} does not match the intrinsics' image size {shape} (H, W)")
         return mm
 
     def add_view(self, depth: np.ndarray, mask: np.ndarray | None, R: np.ndarray, t: np.ndarray) -> bool:
@@ -276,10 +277,10 @@ class LinemodDetector:
         else:
             m = np.asarray(mask)
             if m.shape != mm.shape:
-                raise ValueError(f"mask: shape {m.shape} differs from the depth image's {mm.shape}")
+                raise InvalidValueError(f"mask: shape {m.shape} differs from the depth image's {mm.shape}")
             m = (m != 0) & (mm > 0)  # anchors need depth; OpenCV ignores masked-in holes anyway
         if not m.any():
-            raise ValueError("mask: no object pixel with valid depth in this view")
+            raise InvalidValueError("mask: no object pixel with valid depth in this view")
         R = _as_rotation(R, "R")
         t = _as_translation(t, "t")
         self._n_views += 1
@@ -323,9 +324,9 @@ class LinemodDetector:
         """All matches of ``depth`` (float metres) with similarity >= ``threshold`` percent,
         best first (OpenCV's order), each with its pose; at most ``top`` of them."""
         if not (isinstance(threshold, (int, float, np.number)) and 0 <= threshold <= 100):
-            raise ValueError(f"threshold: expected a similarity percentage in [0, 100], got {threshold!r}")
+            raise InvalidValueError(f"threshold: expected a similarity percentage in [0, 100], got {threshold!r}")
         if top is not None and (not isinstance(top, (int, np.integer)) or top < 1):
-            raise ValueError(f"top: expected a positive integer or None, got {top!r}")
+            raise InvalidValueError(f"top: expected a positive integer or None, got {top!r}")
         mm = self._check_depth(depth, "depth")
         if not self._templates:
             return []
@@ -348,7 +349,7 @@ class LinemodDetector:
     def match_raw(self, depth_mm: np.ndarray, threshold: float = 0.0) -> list:
         """OpenCV's raw ``match`` on a uint16 mm image (no pose, no checks beyond dtype): for timing."""
         if depth_mm.dtype != np.uint16:
-            raise ValueError(f"depth_mm: expected uint16 millimetres, got {depth_mm.dtype}")
+            raise InvalidValueError(f"depth_mm: expected uint16 millimetres, got {depth_mm.dtype}")
         return self._detector.match([depth_mm], float(threshold), [_CLASS])[0]
 
 
@@ -358,7 +359,7 @@ def _default_depth(frame: Any) -> np.ndarray:
         return frame.depth
     if isinstance(frame, Mapping) and "depth" in frame:
         return frame["depth"]
-    raise TypeError(
+    raise InvalidTypeError(
         f"test frame of type {type(frame).__name__} has no .depth or ['depth']; pass depth_of=callable"
     )
 
@@ -441,9 +442,9 @@ def linemod_recall(
     """
     frames = list(test_frames)
     if not frames:
-        raise ValueError("test_frames: empty; the protocol needs at least one test frame")
+        raise InvalidValueError("test_frames: empty; the protocol needs at least one test frame")
     if not callable(is_correct):
-        raise TypeError(f"is_correct: expected a callable (R_est, t_est, frame) -> bool, got {type(is_correct).__name__}")
+        raise InvalidTypeError(f"is_correct: expected a callable (R_est, t_est, frame) -> bool, got {type(is_correct).__name__}")
     depths = [depth_of(f) for f in frames]
     names: list[str] = []
     result = LinemodRecall([], {}, {}, {}, {}, {}, float(threshold), frames)
@@ -455,13 +456,13 @@ def linemod_recall(
     for name, det in instances:
         name = str(name)
         if name in result.matches:
-            raise ValueError(f"instances: duplicate instance name {name!r}")
+            raise InvalidValueError(f"instances: duplicate instance name {name!r}")
         if not isinstance(det, LinemodDetector):
             if not callable(det):
-                raise TypeError(f"instances[{name!r}]: expected a LinemodDetector or a callable building one")
+                raise InvalidTypeError(f"instances[{name!r}]: expected a LinemodDetector or a callable building one")
             det = det()
             if not isinstance(det, LinemodDetector):
-                raise TypeError(f"instances[{name!r}]: the builder returned {type(det).__name__}, not LinemodDetector")
+                raise InvalidTypeError(f"instances[{name!r}]: the builder returned {type(det).__name__}, not LinemodDetector")
         found, seconds = [], np.empty(len(frames))
         for i, d in enumerate(depths):
             t0 = time.perf_counter()
@@ -479,6 +480,6 @@ def linemod_recall(
     if bar is not None:
         bar.close()
     if not names:
-        raise ValueError("instances: empty; the protocol needs at least one training instance")
+        raise InvalidValueError("instances: empty; the protocol needs at least one training instance")
     result.names = names
     return result

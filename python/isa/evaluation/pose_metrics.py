@@ -15,13 +15,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, cKDTree
 
+from isa.exceptions import InvalidValueError
+
 
 def _points(points) -> np.ndarray:
     X = np.asarray(points, float)
     if X.ndim != 2 or X.shape[1] != 3 or len(X) == 0:
-        raise ValueError(f"points: expected a non-empty (N, 3) array, got shape {X.shape}")
+        raise InvalidValueError(f"points: expected a non-empty (N, 3) array, got shape {X.shape}")
     if not np.all(np.isfinite(X)):
-        raise ValueError("points: contains non-finite values")
+        raise InvalidValueError("points: contains non-finite values")
     return X
 
 
@@ -29,9 +31,9 @@ def _pose(R, t, name: str) -> tuple[np.ndarray, np.ndarray]:
     R = np.asarray(R, float)
     t = np.asarray(t, float)
     if R.shape[-2:] != (3, 3):
-        raise ValueError(f"{name}: rotation must be (..., 3, 3), got {R.shape}")
+        raise InvalidValueError(f"{name}: rotation must be (..., 3, 3), got {R.shape}")
     if t.shape[-1:] != (3,):
-        raise ValueError(f"{name}: translation must be (..., 3), got {t.shape}")
+        raise InvalidValueError(f"{name}: translation must be (..., 3), got {t.shape}")
     return R, t
 
 
@@ -63,7 +65,7 @@ def symmetric_average_distance(points, R_gt, t_gt, R_est, t_est) -> float:
     Rg, tg = _pose(R_gt, t_gt, "R_gt/t_gt")
     Re, te = _pose(R_est, t_est, "R_est/t_est")
     if Rg.shape != (3, 3) or Re.shape != (3, 3) or tg.shape != (3,) or te.shape != (3,):
-        raise ValueError("symmetric_average_distance: pass single poses (R (3, 3), t (3,))")
+        raise InvalidValueError("symmetric_average_distance: pass single poses (R (3, 3), t (3,))")
     d, _ = cKDTree(X @ Re.T + te).query(X @ Rg.T + tg)
     return float(d.mean())
 
@@ -76,9 +78,9 @@ def model_points(mesh, n: int = 4096, seed: int = 0) -> np.ndarray:
     import trimesh
 
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError("mesh: expected a trimesh.Trimesh with triangles")
+        raise InvalidValueError("mesh: expected a trimesh.Trimesh with triangles")
     if n < 1:
-        raise ValueError(f"n: need at least one sample, got {n}")
+        raise InvalidValueError(f"n: need at least one sample, got {n}")
     pts, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
     return np.concatenate([pts, mesh.vertices[np.unique(mesh.faces)]])
 
@@ -103,10 +105,10 @@ def model_diameter(points) -> float:
 def is_correct(omega, diameter, z: float = 0.1) -> np.ndarray | bool:
     """Eq. 15: omega <= z * Phi (element-wise)."""
     if not z >= 0:
-        raise ValueError(f"z: must be >= 0, got {z}")
+        raise InvalidValueError(f"z: must be >= 0, got {z}")
     diameter = np.asarray(diameter, float)
     if np.any(diameter <= 0):
-        raise ValueError("diameter: must be positive")
+        raise InvalidValueError("diameter: must be positive")
     out = np.asarray(omega, float) <= z * diameter
     return bool(out) if out.ndim == 0 else out
 
@@ -116,7 +118,7 @@ def recall(omegas, diameters, z: float = 0.1) -> float:
     om = np.asarray(omegas, float).reshape(-1)
     di = np.broadcast_to(np.asarray(diameters, float), om.shape)
     if om.size == 0:
-        raise ValueError("omegas: need at least one hypothesis")
+        raise InvalidValueError("omegas: need at least one hypothesis")
     return float(np.mean(is_correct(om, di, z)))
 
 
@@ -125,7 +127,7 @@ def recall_curve(omegas, diameters, zs=None) -> tuple[np.ndarray, np.ndarray]:
     zs = np.linspace(0.0, 0.5, 51) if zs is None else np.asarray(zs, float).reshape(-1)
     om = np.asarray(omegas, float).reshape(-1)
     if om.size == 0:
-        raise ValueError("omegas: need at least one hypothesis")
+        raise InvalidValueError("omegas: need at least one hypothesis")
     ratio = om / np.broadcast_to(np.asarray(diameters, float), om.shape)
     # Sorted ratios give every recall in one pass (monotone in z).
     r = np.sort(ratio)

@@ -14,7 +14,7 @@ from isa.data import bop
 from isa.exceptions import DataError
 from isa.forest.model import Forest, ForestParams
 from isa.privileged.annotate import Frame, TrainingSet, build_training_set
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 def load_frames(root: Path, split: str, lazy: bool = False) -> list[bop.BopFrame] | bop.FrameSequence:

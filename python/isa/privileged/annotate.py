@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from isa.camera import Intrinsics
-from isa.privileged.skeleton_graph import SkeletonGraph
-
+from isa.camera import Intrinsics, metres_to_mm
+from isa.exceptions import InvalidTypeError, InvalidValueError
+from isa.skeleton_graph import SkeletonGraph
 
 # ---------------------------------------------------------------------------------------------
 # Per-view geometry
@@ -38,7 +38,7 @@ def project_skeleton(skeleton: SkeletonGraph, R, t, intrinsics: Intrinsics) -> n
     t = np.asarray(t, float).reshape(3)
     X = skeleton.nodes @ R.T + t
     if np.any(X[:, 2] <= 0):
-        raise ValueError("skeleton: a node is at or behind the camera (z <= 0) for this pose (R, t)")
+        raise InvalidValueError("skeleton: a node is at or behind the camera (z <= 0) for this pose (R, t)")
     uv = intrinsics.project(X)
     return np.concatenate([uv, X[:, 2:3]], axis=1)
 
@@ -86,7 +86,7 @@ def rotation_quaternion(R) -> np.ndarray:
     """
     R = np.asarray(R, float)
     if R.shape[-2:] != (3, 3):
-        raise ValueError(f"R: expected (..., 3, 3), got {R.shape}")
+        raise InvalidValueError(f"R: expected (..., 3, 3), got {R.shape}")
     m = R.reshape(-1, 3, 3)
     tr = np.trace(m, axis1=1, axis2=2)
     diag = np.diagonal(m, axis1=1, axis2=2)
@@ -184,15 +184,15 @@ class TrainingSet:
 def _check_frame(i: int, f: Frame) -> None:
     d = np.asarray(f.depth)
     if d.ndim != 2:
-        raise ValueError(f"frames[{i}].depth: expected a 2D array, got shape {d.shape}")
+        raise InvalidValueError(f"frames[{i}].depth: expected a 2D array, got shape {d.shape}")
     if np.asarray(f.mask).shape != d.shape:
-        raise ValueError(f"frames[{i}].mask: shape {np.asarray(f.mask).shape} differs from depth {d.shape}")
+        raise InvalidValueError(f"frames[{i}].mask: shape {np.asarray(f.mask).shape} differs from depth {d.shape}")
     if np.asarray(f.R).shape != (3, 3) or np.asarray(f.t).reshape(-1).shape != (3,):
-        raise ValueError(f"frames[{i}]: R must be (3, 3) and t (3,)")
+        raise InvalidValueError(f"frames[{i}]: R must be (3, 3) and t (3,)")
     if not isinstance(f.intrinsics, Intrinsics):
-        raise TypeError(f"frames[{i}].intrinsics: expected isa.camera.Intrinsics, got {type(f.intrinsics).__name__}")
+        raise InvalidTypeError(f"frames[{i}].intrinsics: expected isa.camera.Intrinsics, got {type(f.intrinsics).__name__}")
     if not isinstance(f.skeleton, SkeletonGraph):
-        raise TypeError(f"frames[{i}].skeleton: expected a SkeletonGraph, got {type(f.skeleton).__name__}")
+        raise InvalidTypeError(f"frames[{i}].skeleton: expected a SkeletonGraph, got {type(f.skeleton).__name__}")
 
 
 def build_training_set(
@@ -216,9 +216,9 @@ def build_training_set(
     must have the same nodes count and links (one category template).
     """
     if int(stride) < 1:
-        raise ValueError(f"stride: must be >= 1, got {stride}")
+        raise InvalidValueError(f"stride: must be >= 1, got {stride}")
     if int(margin) < 0:
-        raise ValueError(f"margin: must be >= 0, got {margin}")
+        raise InvalidValueError(f"margin: must be >= 0, got {margin}")
     stride, margin = int(stride), int(margin)
     ref = None
     images: list[np.ndarray] = []
@@ -232,15 +232,15 @@ def build_training_set(
             n_all = len(ref.nodes)
             sel = np.arange(n_all) if nodes is None else np.asarray(nodes, np.int64).reshape(-1)
             if sel.size == 0 or sel.min() < 0 or sel.max() >= n_all:
-                raise ValueError(f"nodes: indices must be in [0, {n_all}), got {sel.tolist()}")
+                raise InvalidValueError(f"nodes: indices must be in [0, {n_all}), got {sel.tolist()}")
             if links is None:
                 links_used = ref.links[np.isin(ref.links, sel).all(1)]
             else:
                 links_used = np.asarray(links, np.int64).reshape(-1, 2)
                 if links_used.size and (links_used.min() < 0 or links_used.max() >= n_all):
-                    raise ValueError(f"links: node index out of range [0, {n_all})")
+                    raise InvalidValueError(f"links: node index out of range [0, {n_all})")
         elif len(f.skeleton.nodes) != n_all or not np.array_equal(f.skeleton.links, ref.links):
-            raise ValueError(f"frames[{i}].skeleton: differs in nodes/links from frames[0]; match all to one template")
+            raise InvalidValueError(f"frames[{i}].skeleton: differs in nodes/links from frames[0]; match all to one template")
         depth = np.asarray(f.depth, np.float32)
         mask = np.asarray(f.mask, bool)
         K = f.intrinsics
@@ -268,7 +268,7 @@ def build_training_set(
         crop_list.append((u0, v0))
         d = depth[v0:v1, u0:u1]
         fg = mask[v0:v1, u0:u1] & (d > 0) & np.isfinite(d)
-        mm = np.rint(np.where(fg, d, 0) * 1000.0)
+        mm = metres_to_mm(np.where(fg, d, 0))
         crop = np.ascontiguousarray(np.clip(mm, 0, 65535).astype(np.uint16))
         images.append(crop)
         # Grid in full-image coordinates: the first grid row/column at or after the crop origin.
@@ -281,7 +281,7 @@ def build_training_set(
         per_z.append(sub[vv, uu].astype(np.float64) / 1000.0)  # the depth the core will see
         per_f.append(np.full(len(vv), i, np.int64))
     if ref is None:
-        raise ValueError("frames: need at least one frame")
+        raise InvalidValueError("frames: need at least one frame")
     F = len(images)
     crops = np.array(crop_list, np.int64).reshape(F, 2)
     node_uvz = np.array(uvz_list, float).reshape(F, n_all, 3)

@@ -34,15 +34,16 @@ from scipy.optimize import linear_sum_assignment, quadratic_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.exceptions import InvalidTypeError, InvalidValueError
+from isa.skeleton_graph import SkeletonGraph
 
 
 def _bounds(bounds) -> np.ndarray:
     b = np.asarray(bounds, dtype=float)
     if b.shape != (2, 3) or not np.all(np.isfinite(b)):
-        raise ValueError(f"bounds: expected a finite (2, 3) array [min xyz, max xyz], got shape {b.shape}")
+        raise InvalidValueError(f"bounds: expected a finite (2, 3) array [min xyz, max xyz], got shape {b.shape}")
     if np.any(b[1] - b[0] <= 0):
-        raise ValueError(f"bounds: every extent must be positive, got {(b[1] - b[0]).tolist()}")
+        raise InvalidValueError(f"bounds: every extent must be positive, got {(b[1] - b[0]).tolist()}")
     return b
 
 
@@ -63,7 +64,7 @@ def _graph_bounds(graph: SkeletonGraph, bounds) -> np.ndarray:
         return _bounds(bounds)
     if "bounds" in graph.meta:
         return _bounds(graph.meta["bounds"])
-    raise ValueError("bounds: not given and the skeleton's meta has no 'bounds' (pass the mesh's bounds)")
+    raise InvalidValueError("bounds: not given and the skeleton's meta has no 'bounds' (pass the mesh's bounds)")
 
 
 def template_from_ground_truth(skeletons: Sequence[SkeletonGraph], bounds: Sequence) -> SkeletonGraph:
@@ -73,16 +74,16 @@ def template_from_ground_truth(skeletons: Sequence[SkeletonGraph], bounds: Seque
     mesh ``bounds``); its links and names are the skeletons' (checked identical).
     """
     if len(skeletons) == 0:
-        raise ValueError("skeletons: need at least one ground-truth skeleton")
+        raise InvalidValueError("skeletons: need at least one ground-truth skeleton")
     if len(bounds) != len(skeletons):
-        raise ValueError(f"bounds: {len(bounds)} given for {len(skeletons)} skeletons")
+        raise InvalidValueError(f"bounds: {len(bounds)} given for {len(skeletons)} skeletons")
     ref = skeletons[0]
     if ref.names is None:
-        raise ValueError("skeletons: ground-truth skeletons must carry node names")
+        raise InvalidValueError("skeletons: ground-truth skeletons must carry node names")
     q = []
     for s, b in zip(skeletons, bounds):
         if s.names != ref.names or not np.array_equal(s.links, ref.links):
-            raise ValueError("skeletons: all ground-truth skeletons must have the same names and links")
+            raise InvalidValueError("skeletons: all ground-truth skeletons must have the same names and links")
         q.append(normalise(s.nodes, b))
     q = np.stack(q)
     meta = {"frame": "normalised-box", "n_instances": len(skeletons), "spread": q.std(0).tolist()}
@@ -125,16 +126,16 @@ def match_skeleton(
     (raw node per template node, -1 if unmatched) and ``cost``.
     """
     if not isinstance(raw, SkeletonGraph) or not isinstance(template, SkeletonGraph):
-        raise TypeError("raw, template: expected SkeletonGraph objects")
+        raise InvalidTypeError("raw, template: expected SkeletonGraph objects")
     if len(raw.nodes) == 0:
-        raise ValueError("raw: the skeleton has no nodes")
+        raise InvalidValueError("raw: the skeleton has no nodes")
     if len(template.nodes) == 0:
-        raise ValueError("template: the template has no nodes")
+        raise InvalidValueError("template: the template has no nodes")
     for name, v in (("sigma", sigma), ("max_dist", max_dist)):
         if not v > 0:
-            raise ValueError(f"{name}: must be positive, got {v}")
+            raise InvalidValueError(f"{name}: must be positive, got {v}")
     if structure < 0:
-        raise ValueError(f"structure: must be >= 0, got {structure}")
+        raise InvalidValueError(f"structure: must be >= 0, got {structure}")
     b = _graph_bounds(raw, bounds)
     R = normalise(raw.nodes, b)
     T = template.nodes
@@ -243,7 +244,7 @@ def calibrate_template(
     training instances and added to every later match (its effect is measured on held-out ones).
     """
     if not (len(raws) == len(truths) == len(bounds)) or len(raws) == 0:
-        raise ValueError(f"raws, truths, bounds: need equal, non-zero lengths, got {len(raws)}, {len(truths)}, {len(bounds)}")
+        raise InvalidValueError(f"raws, truths, bounds: need equal, non-zero lengths, got {len(raws)}, {len(truths)}, {len(bounds)}")
     base = SkeletonGraph(template.nodes, template.links, template.names, {k: v for k, v in template.meta.items() if k != "calibration"})
     acc = np.zeros_like(template.nodes)
     cnt = np.zeros(len(template.nodes))
@@ -269,9 +270,9 @@ def template_from_instances(
     Names are ``node_00``..; deterministic.
     """
     if len(raws) == 0:
-        raise ValueError("raws: need at least one raw skeleton")
+        raise InvalidValueError("raws: need at least one raw skeleton")
     if n_nodes < 2:
-        raise ValueError(f"n_nodes: need at least 2, got {n_nodes}")
+        raise InvalidValueError(f"n_nodes: need at least 2, got {n_nodes}")
     bs = [_graph_bounds(r, None if bounds is None else bounds[i]) for i, r in enumerate(raws)]
     qs = [normalise(r.nodes, b) for r, b in zip(raws, bs)]
 
@@ -340,9 +341,9 @@ def match_graphs_qap(
     """
     A, B = np.asarray(A, float), np.asarray(B, float)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape != B.shape:
-        raise ValueError(f"A, B: need two square matrices of the same shape, got {A.shape} and {B.shape}")
+        raise InvalidValueError(f"A, B: need two square matrices of the same shape, got {A.shape} and {B.shape}")
     if n_init < 1:
-        raise ValueError(f"n_init: need at least 1 start, got {n_init}")
+        raise InvalidValueError(f"n_init: need at least 1 start, got {n_init}")
     pm = np.zeros((0, 2), int) if seeds is None else np.asarray(seeds, int).reshape(-1, 2)
     rng = np.random.default_rng(seed)
     best = None

@@ -29,6 +29,9 @@ Method (chosen by measurement, see issue #3): thinning of a solid voxelisation.
    nodes lie on the skeleton and links are short straight pieces of it.
 
 Node kinds are in ``graph.meta["kind"]``: ``"end"`` (degree 1), ``"junction"`` (>= 3), ``"inner"``.
+
+Longer than 600 lines: one algorithm (the six steps above) whose private stages share the
+``_Graph`` structure; split apart they would make it a public interface for no second user.
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ import trimesh
 from scipy import ndimage as ndi
 from skimage.morphology import skeletonize
 
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.exceptions import InvalidTypeError, InvalidValueError
+from isa.skeleton_graph import SkeletonGraph
 
 # 26-neighbourhood offsets (without the centre).
 _OFFSETS = np.array(
@@ -48,13 +52,13 @@ _OFFSETS = np.array(
 
 def _as_mesh(mesh) -> trimesh.Trimesh:
     if not isinstance(mesh, trimesh.Trimesh):
-        raise TypeError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        raise InvalidTypeError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
-        raise ValueError("mesh: has no triangles")
+        raise InvalidValueError("mesh: has no triangles")
     if not np.all(np.isfinite(mesh.vertices)):
-        raise ValueError("mesh: has non-finite vertex coordinates")
+        raise InvalidValueError("mesh: has non-finite vertex coordinates")
     if float(np.max(mesh.extents)) <= 0:
-        raise ValueError("mesh: is degenerate (zero extent)")
+        raise InvalidValueError("mesh: is degenerate (zero extent)")
     return mesh
 
 
@@ -64,7 +68,7 @@ def sample_surface(mesh: trimesh.Trimesh, spacing: float, seed: int = 0) -> np.n
     Every face gets at least one point, so thin or tiny parts are never lost.
     """
     if not spacing > 0:
-        raise ValueError(f"spacing: must be positive, got {spacing}")
+        raise InvalidValueError(f"spacing: must be positive, got {spacing}")
     mesh = _as_mesh(mesh)
     tri = mesh.triangles
     area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) / 2
@@ -90,7 +94,7 @@ def voxelize_solid(
     See the module docstring for why an axis-enclosure vote rather than ray parity.
     """
     if not pitch > 0:
-        raise ValueError(f"pitch: must be positive, got {pitch}")
+        raise InvalidValueError(f"pitch: must be positive, got {pitch}")
     mesh = _as_mesh(mesh)
     pts = sample_surface(mesh, pitch / 3.0, seed)
     lo = mesh.bounds[0] - 2 * pitch  # 2-voxel empty border: thinning needs background around
@@ -446,10 +450,10 @@ def extract_skeleton(
     """
     mesh = _as_mesh(mesh)
     if int(resolution) < 16:
-        raise ValueError(f"resolution: need at least 16 voxels along the largest extent, got {resolution}")
+        raise InvalidValueError(f"resolution: need at least 16 voxels along the largest extent, got {resolution}")
     for name, val in (("spacing", spacing), ("prune", prune), ("merge", merge), ("cover", cover), ("tip", tip)):
         if not (0 <= val < 1) or (name == "spacing" and val <= 0):
-            raise ValueError(f"{name}: must be a fraction of the diameter in (0, 1), got {val}")
+            raise InvalidValueError(f"{name}: must be a fraction of the diameter in (0, 1), got {val}")
     diam = float(np.linalg.norm(mesh.extents))
     pitch = float(np.max(mesh.extents)) / int(resolution)
     solid, origin = voxelize_solid(mesh, pitch, seed)
@@ -481,7 +485,7 @@ def extract_skeleton(
         pos.append(xyz[node_of == i].mean(0))
     g = _Graph(pos, [(a, b, np.concatenate([[pos[a]], xyz[path], [pos[b]]])) for a, b, path in branches])
     if not g.br and len(pos) == 0:
-        raise ValueError("mesh: skeleton has no branches")
+        raise InvalidValueError("mesh: skeleton has no branches")
 
     min_loop = 3 * pitch
     g.drop_duplicates(min_loop)
@@ -668,12 +672,12 @@ def _keep_largest_component(g: _Graph) -> None:
     if not parent:
         return
     size: dict[int, float] = {}
-    for a, b, p in g.br.values():
+    for a, _, p in g.br.values():
         size[find(a)] = size.get(find(a), 0.0) + g.length(p)
     if not size:
         return
     best = max(size, key=size.get)
-    for k, (a, b, _) in list(g.br.items()):
+    for k, (a, _, _) in list(g.br.items()):
         if find(a) != best:
             del g.br[k]
     for n in list(g.pos):

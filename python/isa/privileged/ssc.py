@@ -25,9 +25,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from isa.exceptions import InvalidValueError
 from isa.privileged.matching import match_skeleton
 from isa.privileged.skeleton import extract_skeleton, solid_centre_of_mass
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.skeleton_graph import SkeletonGraph
 
 
 def centre_of_mass(mesh: trimesh.Trimesh, resolution: int = 80, seed: int = 0) -> np.ndarray:
@@ -48,9 +49,9 @@ class SSC:
         self.weights = np.asarray(self.weights, float).reshape(-1)
         self.votes = np.asarray(self.votes, int).reshape(-1)
         if self.weights.shape != self.votes.shape:
-            raise ValueError(f"SSC: {self.weights.shape[0]} weights for {self.votes.shape[0]} votes")
+            raise InvalidValueError(f"SSC: {self.weights.shape[0]} weights for {self.votes.shape[0]} votes")
         if not np.isclose(self.weights.sum(), 1.0) or np.any(self.weights < 0):
-            raise ValueError("SSC: weights must be non-negative and sum to 1")
+            raise InvalidValueError("SSC: weights must be non-negative and sum to 1")
 
     @property
     def nodes(self) -> np.ndarray:
@@ -60,7 +61,7 @@ class SSC:
     def point(self, matched: SkeletonGraph) -> np.ndarray:
         """The SSC of one instance from its matched skeleton (same coordinates as its nodes)."""
         if len(matched.nodes) != len(self.weights):
-            raise ValueError(f"matched: has {len(matched.nodes)} nodes, the SSC is over {len(self.weights)} template nodes")
+            raise InvalidValueError(f"matched: has {len(matched.nodes)} nodes, the SSC is over {len(self.weights)} template nodes")
         return self.weights @ matched.nodes
 
     def to_dict(self) -> dict:
@@ -84,18 +85,18 @@ def select_ssc(matched: Sequence[SkeletonGraph], coms: Sequence, tie_tolerance: 
     is within ``tie_tolerance`` of the top count are tied and share the SSC equally.
     """
     if len(matched) == 0:
-        raise ValueError("matched: need at least one instance")
+        raise InvalidValueError("matched: need at least one instance")
     if len(coms) != len(matched):
-        raise ValueError(f"coms: {len(coms)} given for {len(matched)} instances")
+        raise InvalidValueError(f"coms: {len(coms)} given for {len(matched)} instances")
     if tie_tolerance < 0:
-        raise ValueError(f"tie_tolerance: must be >= 0, got {tie_tolerance}")
+        raise InvalidValueError(f"tie_tolerance: must be >= 0, got {tie_tolerance}")
     n = len(matched[0].nodes)
     votes = np.zeros(n, int)
     dist_sum = np.zeros(n)
     dist_cnt = np.zeros(n)
     for m, com in zip(matched, coms):
         if len(m.nodes) != n:
-            raise ValueError(f"matched: instances have {len(m.nodes)} and {n} nodes; match them to one template first")
+            raise InvalidValueError(f"matched: instances have {len(m.nodes)} and {n} nodes; match them to one template first")
         com = np.asarray(com, float).reshape(3)
         d = np.linalg.norm(m.nodes - com, axis=1)
         ok = np.asarray(m.meta.get("matched", [True] * n), bool)
@@ -105,7 +106,7 @@ def select_ssc(matched: Sequence[SkeletonGraph], coms: Sequence, tie_tolerance: 
         dist_cnt[ok] += 1
         votes[np.flatnonzero(ok)[np.argmin(d[ok])]] += 1
     if votes.sum() == 0:
-        raise ValueError("matched: no instance has a matched node")
+        raise InvalidValueError("matched: no instance has a matched node")
     tied = votes >= votes.max() - tie_tolerance
     w = tied / tied.sum()
     md = np.where(dist_cnt > 0, dist_sum / np.maximum(dist_cnt, 1), np.nan)
@@ -134,7 +135,7 @@ class CategorySSC:
 
     def __post_init__(self) -> None:
         if self.centre not in CENTRES:
-            raise ValueError(f"centre: must be one of {', '.join(CENTRES)}, got {self.centre!r}")
+            raise InvalidValueError(f"centre: must be one of {', '.join(CENTRES)}, got {self.centre!r}")
 
     def skeleton(self, mesh: trimesh.Trimesh) -> SkeletonGraph:
         """``mesh``'s skeleton matched to the template, in the mesh's coordinates."""
@@ -179,7 +180,7 @@ def fit_category_ssc(
     mesh's own coordinates).
     """
     if len(meshes) == 0:
-        raise ValueError("meshes: need at least one training mesh")
+        raise InvalidValueError("meshes: need at least one training mesh")
     kw = dict(extract_kw or {})
     raws = [extract_skeleton(m, **kw) for m in meshes]
     matched = [match_skeleton(r, template, m.bounds) for r, m in zip(raws, meshes)]

@@ -88,13 +88,23 @@ def find_yaw_symmetry(mesh: trimesh.Trimesh, tolerance: float = SYMMETRY_TOLERAN
     def error(theta: float) -> float:
         return float(tree.query(local @ rot_z(theta).T + centre)[0].mean()) / diam
 
-    errs = [error(np.radians(a)) for a in _CONTINUOUS_PROBES_DEG]
-    if max(errs) < tolerance:
-        return YawSymmetry(centre, 0, max(errs))
+    def group_error(angles) -> float | None:
+        """The largest error over ``angles``, or None as soon as one turn fails (most shapes fail
+        the first turn tested, and a failed turn's nearest-neighbour queries are the slow ones)."""
+        worst = 0.0
+        for a in angles:
+            worst = max(worst, error(a))
+            if worst >= tolerance:
+                return None
+        return worst
+
+    err = group_error(np.radians(_CONTINUOUS_PROBES_DEG))
+    if err is not None:
+        return YawSymmetry(centre, 0, err)
     for n in ORDERS:
-        errs = [error(2 * np.pi * k / n) for k in range(1, n)]
-        if max(errs) < tolerance:
-            return YawSymmetry(centre, n, max(errs))
+        err = group_error(2 * np.pi * np.arange(1, n) / n)
+        if err is not None:
+            return YawSymmetry(centre, n, err)
     return YawSymmetry(centre, 1, 0.0)
 
 

@@ -25,16 +25,16 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from isa.data import bop
 from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS, check_category
-from isa.exceptions import DataError
+from isa.data import bop
 from isa.data.meshes import prepare_mesh
 from isa.data.modelnet import list_instances, paper_instances, validation_instances
-from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.data.procedural import generate
-from isa.privileged.skeleton_graph import SkeletonGraph
+from isa.exceptions import DataError, InvalidValueError
+from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.render.views import Views, sample_test_views, training_views
+from isa.skeleton_graph import SkeletonGraph
 
 
 @dataclass
@@ -119,7 +119,7 @@ def _settings(intrinsics: Intrinsics, depth_scale: float, noise: KinectNoise | N
             "noise": asdict(noise) if noise is not None else None, "views": views_id}
 
 
-def _check_settings(path: Path, settings: dict) -> None:
+def check_settings(path: Path, settings: dict) -> None:
     """Refuse to resume into a folder rendered with other settings (frames would be mixed)."""
     if path.is_file():
         old = bop.read_json(path)
@@ -178,10 +178,10 @@ def render_dataset(
     if len(set(ids)) != len(ids):
         raise DataError(f"render_dataset: duplicate obj_id in {ids}")
     if renderer is not None and renderer.intrinsics != intrinsics:
-        raise ValueError("render_dataset: the renderer's intrinsics differ from `intrinsics`")
+        raise InvalidValueError("render_dataset: the renderer's intrinsics differ from `intrinsics`")
     views_id = "given" if isinstance(views, Views) else ("callable" if callable(views) else f"default-fit:{n_views}:{view_seed}")
     (out_root / split).mkdir(parents=True, exist_ok=True)
-    _check_settings(out_root / split / "isa_render.json", _settings(intrinsics, depth_scale, noise, views_id))
+    check_settings(out_root / split / "isa_render.json", _settings(intrinsics, depth_scale, noise, views_id))
     _write_models(out_root, objects)
 
     per_obj = []

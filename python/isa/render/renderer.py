@@ -26,6 +26,7 @@ import numpy as np
 import trimesh
 
 from isa.camera import KINECT_V1, Intrinsics
+from isa.exceptions import UsageError
 
 # OpenCV camera (y down, z forward) -> OpenGL camera (y up, z backward).
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -133,7 +134,7 @@ class DepthRenderer:
         node = self._mesh_node(mesh)
         self._scene.set_pose(node, _CV_TO_GL @ T)
         if self._renderer is None:
-            raise RuntimeError("DepthRenderer.render after close()")
+            raise UsageError("DepthRenderer.render after close()")
         gl = _shared_gl(self.intrinsics.width, self.intrinsics.height)
         depth = gl.render(self._scene, flags=_pyrender.RenderFlags.DEPTH_ONLY)
         depth = np.ascontiguousarray(depth, dtype=np.float32)

@@ -13,6 +13,7 @@ import numpy as np
 
 from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS
+from isa.exceptions import InvalidValueError
 
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
@@ -43,7 +44,7 @@ def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), roll: float = 0.0) 
     z = target - eye
     n = np.linalg.norm(z)
     if n == 0:
-        raise ValueError("look_at: eye and target coincide")
+        raise InvalidValueError("look_at: eye and target coincide")
     z /= n
     y = -(up - (up @ z) * z)  # OpenCV y points down in the image
     if np.linalg.norm(y) < 1e-9:
@@ -63,7 +64,7 @@ def hemisphere_directions(n: int, elevation_deg: tuple[float, float] = (10.0, 80
     hemisphere between the two elevations (degrees above the horizon); ``azimuth0`` rotates them."""
     lo, hi = np.radians(elevation_deg)
     if not (0 <= lo < hi <= np.pi / 2):
-        raise ValueError(f"elevation_deg must satisfy 0 <= lo < hi <= 90, got {elevation_deg}")
+        raise InvalidValueError(f"elevation_deg must satisfy 0 <= lo < hi <= 90, got {elevation_deg}")
     i = np.arange(n) + 0.5
     # Equal-area: sin(elevation) uniform in [sin lo, sin hi].
     s = np.sin(lo) + (np.sin(hi) - np.sin(lo)) * i / n
@@ -85,7 +86,7 @@ def fit_distance(R: np.ndarray, points, target, intrinsics: Intrinsics = KINECT_
     room_u = np.where(X[:, 0] > 0, K.width - 1 - margin_px - K.cx, K.cx - margin_px)
     room_v = np.where(X[:, 1] > 0, K.height - 1 - margin_px - K.cy, K.cy - margin_px)
     if np.any(room_u <= 0) or np.any(room_v <= 0):
-        raise ValueError(f"fit_distance: margin {margin_px} px leaves no room in a {K.width}x{K.height} image")
+        raise InvalidValueError(f"fit_distance: margin {margin_px} px leaves no room in a {K.width}x{K.height} image")
     d = np.concatenate([K.fx * np.abs(X[:, 0]) / room_u - X[:, 2], K.fy * np.abs(X[:, 1]) / room_v - X[:, 2], znear - X[:, 2]])
     return float(d.max())
 
@@ -160,7 +161,7 @@ def sample_test_views(
         if ex is None or np.max(ex @ d) < cos_min:
             dirs.append(d)
     if len(dirs) < n:
-        raise ValueError(f"sample_test_views: could not place {n} views {min_separation_deg} deg away from the training views")
+        raise InvalidValueError(f"sample_test_views: could not place {n} views {min_separation_deg} deg away from the training views")
     dist = rng.uniform(*distance, size=n)
     roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
     return _views_from(np.array(dirs).reshape(-1, 3), dist, target, roll, fit_points, intrinsics)

@@ -11,7 +11,6 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
-
 #: Version of the ``results.json`` layout (docs/results.md); bumped when its schema changes.
 RESULTS_SCHEMA = "isa-results/2"
 

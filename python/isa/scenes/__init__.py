@@ -6,11 +6,14 @@
 """
 
 from isa.scenes.io import GroundTruth, SceneFrame, read_scene_dataset
+from isa.scenes.scan2cad import make_scan2cad_scenes
+from isa.scenes.sources import MeshSource, modelnet_protocol, modelnet_test, modelnet_validation, procedural
 from isa.scenes.writer import make_scenes
 
-__all__ = ["GroundTruth", "SceneFrame", "make_scenes", "read_scene_dataset"]
+__all__ = ["GroundTruth", "MeshSource", "SceneFrame", "make_scan2cad_scenes", "make_scenes", "modelnet_protocol", "modelnet_test",
+           "modelnet_validation", "procedural", "read_scene_dataset"]
 
 # Scoring and the benchmark (the scoring helper's part).
-from isa.scenes.scoring import Detection, Scores, evaluate
+from isa.scenes.scoring import Detection, Scores, evaluate  # noqa: E402
 
 __all__ += ["Detection", "Scores", "evaluate"]

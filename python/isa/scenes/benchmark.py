@@ -31,7 +31,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from isa.camera import Intrinsics
-from isa.exceptions import DataError
+from isa.exceptions import DataError, DataNotFoundError
 from isa.scenes.scoring import (
     METRICS,
     VISIB_BINS,
@@ -117,7 +117,7 @@ def load_models(models: Mapping[str, Any]) -> tuple[dict, dict]:
         if isinstance(m, (str, os.PathLike)):
             path = Path(m)
             if not path.is_file():
-                raise DataError(f"{path}: {cat} model file not found")
+                raise DataNotFoundError(f"{path}: {cat} model file not found")
             forests[cat], sources[cat] = Forest.load(path), str(path)
         else:
             forests[cat], sources[cat] = m, "in memory"
@@ -167,7 +167,7 @@ def load_detections(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
     """Read :func:`save_detections`' file back (detections as :class:`Detection`)."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"{path}: detections file not found")
+        raise DataNotFoundError(f"{path}: detections file not found")
     try:
         doc = json.loads(path.read_text())
     except json.JSONDecodeError as exc:

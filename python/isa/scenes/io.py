@@ -7,13 +7,14 @@ millimetres. Poses are ``X_cam = R @ X_obj + t`` as everywhere in isa.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from isa.data import bop
 from isa.camera import Intrinsics
+from isa.data import bop
 from isa.exceptions import DataError
 
 #: ``GroundTruth.symmetries`` of an object with a continuous turn symmetry about its z axis.
@@ -75,7 +76,9 @@ class ModelTruth:
     points: np.ndarray
 
 
-def _symmetries(info: dict, where: str) -> tuple[list | str, np.ndarray]:
+def symmetries_of(info: dict, where: str) -> tuple[list | str, np.ndarray]:
+    """A ``models_info`` entry's turn group (``GroundTruth.symmetries``) and its axis' point
+    (metres); ``where`` names the entry in errors."""
     cont = info.get("symmetries_continuous") or []
     if cont:
         axis = np.asarray(cont[0]["axis"], float)
@@ -114,7 +117,7 @@ def read_models(root: str | Path) -> dict[int, ModelTruth]:
             lo = np.array([info["min_x"], info["min_y"], info["min_z"]], float) / 1000.0
         except KeyError as exc:
             raise DataError(f"{where}: missing {exc}") from None
-        syms, centre = _symmetries(info, where)
+        syms, centre = symmetries_of(info, where)
         if bop.model_path(root, obj_id).is_file():
             pts = model_points(bop.read_model(root, obj_id))
         else:
@@ -123,8 +126,46 @@ def read_models(root: str | Path) -> dict[int, ModelTruth]:
     return out
 
 
-def read_scene_dataset(root: str | Path, split: str) -> list[SceneFrame]:
-    """Every frame of ``<root>/<split>`` in scene then image order, with its ground truth.
+def _frame(d: Path, sid: int, k: str, cam: dict, gts: list, infos: list, models: dict[int, ModelTruth]) -> SceneFrame:
+    im = int(k)
+    png = d / "depth" / f"{im:06d}.png"
+    values = bop.read_png(png)
+    K = Intrinsics.from_K(cam["cam_K"], values.shape[1], values.shape[0])
+    depth = bop.png_to_depth(values, float(cam.get("depth_scale", 1.0)))
+    grav = np.asarray(cam["isa_gravity"], float).reshape(3, 3) if "isa_gravity" in cam else None
+    gt = []
+    for j, g in enumerate(gts):
+        oid = int(g["obj_id"])
+        if oid not in models:
+            raise DataError(f"{d / 'scene_gt.json'} image {im}: obj_id {oid} is not in models_info.json")
+        m = models[oid]
+        info = infos[j] if j < len(infos) else {}
+        gt.append(GroundTruth(oid, m.category, np.asarray(g["cam_R_m2c"], float).reshape(3, 3),
+                              np.asarray(g["cam_t_m2c"], float) / 1000.0, m.size,
+                              float(info.get("visib_fract", 1.0)), m.symmetries, m.points, m.centre,
+                              int(info.get("px_count_visib", 0)), tuple(info.get("bbox_visib", (-1, -1, -1, -1)))))
+    return SceneFrame(sid, im, depth, K, grav, gt, png)
+
+
+class SceneFrames(Sequence):
+    """A split's frames, each read from disk when it is asked for (``read_scene_dataset(...,
+    lazy=True)``): hundreds of 640x480 views then never sit in memory together."""
+
+    def __init__(self, entries: list[tuple], models: dict[int, ModelTruth]) -> None:
+        self._entries, self._models = entries, models
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        return _frame(*self._entries[i], self._models)
+
+
+def read_scene_dataset(root: str | Path, split: str, lazy: bool = False) -> list[SceneFrame] | SceneFrames:
+    """Every frame of ``<root>/<split>`` in scene then image order, with its ground truth
+    (``lazy``: a :class:`SceneFrames` that reads each frame on use).
 
     ``DataError`` naming the file when the split, a scene file or an image is missing or corrupt.
     """
@@ -133,32 +174,15 @@ def read_scene_dataset(root: str | Path, split: str) -> list[SceneFrame]:
     if not scenes:
         raise DataError(f"{root / split}: no scenes (no <scene>/scene_gt.json)")
     models = read_models(root)
-    frames = []
+    entries = []
     for sid in scenes:
         d = bop.scene_dir(root, split, sid)
         cams = bop.read_json(d / "scene_camera.json")
         gts = bop.read_json(d / "scene_gt.json")
         infos = bop.read_json(d / "scene_gt_info.json") if (d / "scene_gt_info.json").is_file() else {}
         for k in sorted(gts, key=int):
-            im = int(k)
             if k not in cams:
-                raise DataError(f"{d / 'scene_camera.json'}: no entry for image {im}")
-            cam = cams[k]
-            png = d / "depth" / f"{im:06d}.png"
-            values = bop.read_png(png)
-            K = Intrinsics.from_K(cam["cam_K"], values.shape[1], values.shape[0])
-            depth = bop.png_to_depth(values, float(cam.get("depth_scale", 1.0)))
-            grav = np.asarray(cam["isa_gravity"], float).reshape(3, 3) if "isa_gravity" in cam else None
-            gt = []
-            for j, g in enumerate(gts[k]):
-                oid = int(g["obj_id"])
-                if oid not in models:
-                    raise DataError(f"{d / 'scene_gt.json'} image {im}: obj_id {oid} is not in models_info.json")
-                m = models[oid]
-                info = infos.get(k, [{}] * len(gts[k]))[j] if k in infos else {}
-                gt.append(GroundTruth(oid, m.category, np.asarray(g["cam_R_m2c"], float).reshape(3, 3),
-                                      np.asarray(g["cam_t_m2c"], float) / 1000.0, m.size,
-                                      float(info.get("visib_fract", 1.0)), m.symmetries, m.points, m.centre,
-                                      int(info.get("px_count_visib", 0)), tuple(info.get("bbox_visib", (-1, -1, -1, -1)))))
-            frames.append(SceneFrame(sid, im, depth, K, grav, gt, png))
-    return frames
+                raise DataError(f"{d / 'scene_camera.json'}: no entry for image {k}")
+            entries.append((d, sid, k, cams[k], gts[k], infos.get(k, [])))
+    frames = SceneFrames(entries, models)
+    return frames if lazy else list(frames)

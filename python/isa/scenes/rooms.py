@@ -16,11 +16,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 from shapely import affinity
-from shapely.geometry import MultiPoint, Point, Polygon, box as shapely_box
+from shapely.geometry import MultiPoint, Point, Polygon
+from shapely.geometry import box as shapely_box
 
+from isa.camera import Intrinsics
 from isa.evaluation.boxes3d import rot_z
-from isa.render.dataset import ObjectSpec
 from isa.exceptions import InvalidParameterError
+from isa.render.dataset import ObjectSpec, hull_points
 
 WALL_HEIGHT = 2.6
 WALL_THICKNESS = 0.1
@@ -58,7 +60,8 @@ class Room:
     walls: tuple[str, ...]
     static: trimesh.Trimesh
     instances: list[Instance]
-    clutter: list[str] = field(default_factory=list)
+    clutter: list[str] = field(default_factory=list)  # the kind of each clutter item
+    clutter_meshes: list[trimesh.Trimesh] = field(default_factory=list)  # each item, world frame
     footprints: list[Polygon] = field(default_factory=list)  # everything standing on the floor
 
     def scene_mesh(self) -> trimesh.Trimesh:
@@ -92,11 +95,8 @@ class RoomParams:
 
 
 def _hull_xy(mesh: trimesh.Trimesh) -> Polygon:
-    try:
-        v = np.asarray(mesh.convex_hull.vertices)
-    except Exception:
-        v = np.asarray(mesh.vertices)
-    return MultiPoint([tuple(p) for p in v[:, :2]]).convex_hull
+    """The footprint: the mesh's convex hull seen from above."""
+    return MultiPoint([tuple(p) for p in hull_points(mesh)[:, :2]]).convex_hull
 
 
 def _inside(poly: Polygon, size: tuple[float, float], margin: float = 0.05) -> bool:
@@ -179,28 +179,52 @@ def _shelf(rng) -> trimesh.Trimesh:
     return trimesh.util.concatenate(parts)
 
 
+#: The top-down view that finds a table's top: pixels and metres per pixel.
+_TOP_VIEW_PX, _TOP_VIEW_RES = 256, 0.01
+
+
+def _heights_from_above(mesh: trimesh.Trimesh, centre_xy, top: float) -> tuple[np.ndarray, Intrinsics]:
+    """A depth image of ``mesh`` seen straight down from 1 m above ``top`` over ``centre_xy``
+    (the project's renderer, so no ray-casting library is needed), and its intrinsics: the
+    surface height under pixel (u, v) is ``top + 1 - depth``."""
+    from isa.render.renderer import DepthRenderer
+
+    f = 1.0 / _TOP_VIEW_RES  # 1 cm per pixel at the top's height
+    n = _TOP_VIEW_PX
+    K = Intrinsics(fx=f, fy=f, cx=(n - 1) / 2, cy=(n - 1) / 2, width=n, height=n)
+    R = np.diag([1.0, -1.0, -1.0])  # image x = world x, image down = world -y, looking down -z
+    eye = np.array([centre_xy[0], centre_xy[1], top + 1.0])
+    with DepthRenderer(K, znear=0.05, zfar=5.0) as r:
+        depth, _ = r.render(mesh, R, -R @ eye)
+    return depth, K
+
+
 def _table_top_items(rng, inst: Instance, n: int) -> list[trimesh.Trimesh]:
-    """Up to ``n`` small boxes and cylinders standing on a table's top, found by casting rays down
-    onto it (an item is kept only where its whole footprint rests on the top surface)."""
+    """Up to ``n`` small boxes and cylinders standing on a table's top, found on a depth image
+    taken from above (an item is kept only where its whole footprint rests on the top surface)."""
     mesh = inst.world_mesh
     top = mesh.bounds[1, 2]
     fp = inst.footprint
+    c = fp.centroid
+    depth, K = _heights_from_above(mesh, (c.x, c.y), top)
     out = []
     for _ in range(4 * n):
         if len(out) == n:
             break
         s = rng.uniform(0.04, 0.14)
         h = rng.uniform(0.03, 0.3)
-        c = fp.centroid
         minx, miny, maxx, maxy = fp.bounds
         x = c.x + rng.uniform(-0.35, 0.35) * (maxx - minx)
         y = c.y + rng.uniform(-0.35, 0.35) * (maxy - miny)
         probe = np.array([[x, y], [x - s, y - s], [x + s, y - s], [x - s, y + s], [x + s, y + s]])
-        origins = np.c_[probe, np.full(len(probe), top + 0.5)]
-        locs, idx, _ = mesh.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(probe), 1)), multiple_hits=False)
-        if len(idx) < len(probe):
+        u = np.rint((probe[:, 0] - c.x) * K.fx + K.cx).astype(int)
+        v = np.rint(-(probe[:, 1] - c.y) * K.fy + K.cy).astype(int)
+        if np.any((u < 0) | (u >= K.width) | (v < 0) | (v >= K.height)):
             continue
-        z = locs[:, 2]
+        d = depth[v, u]
+        if np.any(d <= 0):
+            continue
+        z = top + 1.0 - d
         if z.max() - z.min() > 0.01 or top - z.max() > 0.08:
             continue
         zt = float(z.max())
@@ -277,4 +301,4 @@ def make_room(rng: np.random.Generator, source, n_instances: tuple[int, int] = (
             on_top = _table_top_items(rng, inst, n) if n else []
             items.extend(on_top)
             clutter.extend(["table-top"] * len(on_top))
-    return Room(size, walls, trimesh.util.concatenate(static + items), instances, clutter, taken)
+    return Room(size, walls, trimesh.util.concatenate(static + items), instances, clutter, items, taken)

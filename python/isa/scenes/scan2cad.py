@@ -38,10 +38,10 @@ from scipy.spatial.transform import Rotation
 from shapely.geometry import MultiPoint, Point
 
 from isa.exceptions import DataError
+from isa.privileged.symmetry import YawSymmetry
 from isa.render.noise import KinectNoise
 from isa.scenes.cameras import CameraRig, sample_camera
-from isa.scenes.writer import Placement, SceneObject, SceneSpec, check_settings, write_scenes
-from isa.privileged.symmetry import YawSymmetry
+from isa.scenes.writer import Placement, SceneObject, SceneSpec, check_settings, output_split, write_scenes
 
 #: ShapeNet category ids of the objects kept, and their category.
 CATEGORIES = {"03001627": "chair", "04379243": "table"}
@@ -213,9 +213,10 @@ def make_scan2cad_scenes(out_root, scan_dir, n_views: int, seed: int = 0, noise:
         raise DataError(f"{scan_dir}: no example_annotation.json (Scan2CAD's alignment of the scan)")
     reference = reference or procedural(tuple(LABELS), seed=0)
     origins = {c: relative_origin(reference, c) for c in LABELS}
+    if n_views < 1:
+        raise DataError(f"make_scan2cad_scenes: n_views must be >= 1, got {n_views}")
     params = KinectNoise() if noise is True else (noise or None)
-    root = Path(out_root)
-    (root / split).mkdir(parents=True, exist_ok=True)
+    root = output_split(out_root, split)
     check_settings(root / split / "isa_scenes.json", {
         "kind": "scan2cad", "scan": scan_dir.name, "seed": seed, "views": n_views, "reference": reference.name,
         "noise": asdict(params) if params else None, "rig": asdict(rig)})

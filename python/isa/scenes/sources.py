@@ -14,12 +14,15 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from isa import pipeline
 from isa.categories import CENTRE, check_category
-from isa.render.dataset import ObjectSpec, modelnet_objects, procedural_objects
 from isa.exceptions import DataError
-from isa.privileged.ssc import CategorySSC
+from isa.privileged.matching import template_from_ground_truth
+from isa.privileged.ssc import CategorySSC, centre_of_mass, select_ssc
+from isa.render.dataset import ObjectSpec, modelnet_objects, procedural_objects
+from isa.skeleton_graph import SkeletonGraph
 
 #: Procedural instances per category in a procedural source.
 PROCEDURAL_INSTANCES = 6
@@ -97,14 +100,27 @@ def procedural(categories: Sequence[str], seed: int = 0, n: int = PROCEDURAL_INS
     cats = _check(categories)
     raw = {c: procedural_objects(c, n, seed=seed) for c in cats}
 
-    def ssc_for(category: str) -> CategorySSC | None:
+    def ssc_for(category: str) -> CategorySSC:
         if ssc and category in ssc:
             return ssc[category]
-        if CENTRE.get(category) != "ssc":
-            return None
-        return pipeline.prepare_category(category, raw[category], use_ground_truth=True, progress=False).ssc
+        return ground_truth_ssc(category, raw[category])
 
     return MeshSource(f"procedural:{seed}:{n}", cats, lambda c: raw[c], _preparer(ssc_for, True))
+
+
+def ground_truth_ssc(category: str, objects: Sequence[ObjectSpec]) -> CategorySSC:
+    """The CategorySSC that ``prepare_category(category, objects, use_ground_truth=True)`` fits,
+    without calibrating the template against skeleton extraction (seconds per category): with
+    true skeletons the template lends only its node names and links, so the SSC and every origin
+    are the same. A category whose origin is not its SSC (centre of mass, box centre) keeps the SSC
+    only as a label, so it is fitted on the first instance alone (a centre of mass each costs a
+    voxelisation)."""
+    if CENTRE.get(category, "ssc") != "ssc":
+        objects = objects[:1]
+    template = template_from_ground_truth([o.skeleton for o in objects], [o.mesh.bounds for o in objects])
+    matched = [SkeletonGraph(o.skeleton.nodes, template.links, template.names) for o in objects]
+    coms = [centre_of_mass(o.mesh) for o in objects]
+    return CategorySSC(template, select_ssc(matched, coms), centre=CENTRE.get(category, "ssc"))
 
 
 def _modelnet_ssc(root, ssc: Mapping[str, CategorySSC] | None):
@@ -119,13 +135,26 @@ def _modelnet_ssc(root, ssc: Mapping[str, CategorySSC] | None):
     return ssc_for
 
 
+def _modelnet_load(root, split: str, n: int | None, seed: int):
+    """ModelNet instances of a category with a machine-independent ``source``:
+    ``modelnet:<split folder>/<file>`` (the contract's ``isa_source``)."""
+    def load(category: str) -> list[ObjectSpec]:
+        objs = modelnet_objects(root, category, n, split=split, seed=seed, progress=False)
+        for o in objs:
+            p = Path(o.source)
+            o.source = f"modelnet:{p.parent.name}/{p.name}"
+        return objs
+
+    return load
+
+
 def modelnet_test(root, categories: Sequence[str], n: int | None = None, seed: int = 0,
                   ssc: Mapping[str, CategorySSC] | None = None) -> MeshSource:
     """ModelNet10 test-split meshes (the first ``n`` per category, None: all), rescaled to a real
     size seeded per instance from ``seed``: for test scenes."""
     cats = _check(categories)
-    load = lambda c: modelnet_objects(root, c, n, split="test", seed=seed, progress=False)  # noqa: E731
-    return MeshSource(f"modelnet-test:{n}:{seed}", cats, load, _preparer(_modelnet_ssc(root, ssc), False))
+    return MeshSource(f"modelnet-test:{n}:{seed}", cats, _modelnet_load(root, "test", n, seed),
+                      _preparer(_modelnet_ssc(root, ssc), False))
 
 
 def modelnet_validation(root, categories: Sequence[str], n: int | None = None, seed: int = 0,
@@ -139,5 +168,15 @@ def modelnet_validation(root, categories: Sequence[str], n: int | None = None, s
     cats = _check(categories)
     for c in cats:  # raises when the protocol's training instances and these would overlap
         validation_instances(root, c, n, n_train=PAPER_INSTANCES[c])
-    load = lambda c: modelnet_objects(root, c, n, split="validation", seed=seed, progress=False)  # noqa: E731
-    return MeshSource(f"modelnet-validation:{n}:{seed}", cats, load, _preparer(_modelnet_ssc(root, ssc), False))
+    return MeshSource(f"modelnet-validation:{n}:{seed}", cats, _modelnet_load(root, "validation", n, seed),
+                      _preparer(_modelnet_ssc(root, ssc), False))
+
+
+def modelnet_protocol(root, categories: Sequence[str], seed: int = 0,
+                      ssc: Mapping[str, CategorySSC] | None = None) -> MeshSource:
+    """The paper protocol's training meshes (the first train-split files, Table 1's counts), never
+    for scenes that score a model trained on them: the reference whose box-relative origins
+    :func:`isa.scenes.scan2cad.relative_origin` measures for mesh-less (Scan2CAD) objects."""
+    cats = _check(categories)
+    return MeshSource(f"modelnet-protocol:{seed}", cats, _modelnet_load(root, "train", None, seed),
+                      _preparer(_modelnet_ssc(root, ssc), False))

@@ -1,4 +1,4 @@
-"""Scenes to disk in the BOP format (the layout of docs/scenes, readable by bop_toolkit):
+"""Scenes to disk in the BOP format (the layout in docs/scenes.md, readable by bop_toolkit):
 multi-object ``scene_gt.json``, ``scene_gt_info.json`` computed as bop_toolkit's
 ``scripts/calc_gt_info.py`` does, ``mask/`` and ``mask_visib/`` per instance, ``models/`` with
 ``models_info.json`` (diameter, extents, turn symmetries) and ``camera.json``.
@@ -23,6 +23,8 @@ from ``(seed, scene_id)`` alone, so a rerun, a resumed run and a fresh run give 
 from __future__ import annotations
 
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -30,14 +32,15 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
-from isa.data import bop
 from isa.camera import Intrinsics
-from isa.render.dataset import ObjectSpec
+from isa.data import bop
 from isa.exceptions import DataError
+from isa.privileged.symmetry import YawSymmetry, find_yaw_symmetry
+from isa.render.dataset import ObjectSpec, RenderSummary, hull_points
+from isa.render.dataset import check_settings as render_dataset_check
 from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.scenes.cameras import Camera, CameraRig, sample_camera
 from isa.scenes.rooms import Room, RoomParams, make_room
-from isa.privileged.symmetry import YawSymmetry, find_yaw_symmetry
 
 #: bop_toolkit's visibility tolerance (calc_gt_info.py ``delta``), millimetres.
 DELTA_MM = 15.0
@@ -124,6 +127,14 @@ class Placement:
     R: np.ndarray
     t: np.ndarray
     mesh: trimesh.Trimesh
+    _hull: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def hull(self) -> np.ndarray:
+        """The mesh's convex-hull vertices (all vertices when it has no 3D hull), computed once."""
+        if self._hull is None:
+            self._hull = hull_points(self.mesh)
+        return self._hull
 
 
 @dataclass(eq=False)
@@ -183,14 +194,10 @@ def gt_info(scene_depth: np.ndarray, stored_depth: np.ndarray, alone_depth: np.n
     return info, mask, visib
 
 
-def _cut_by_border(mesh: trimesh.Trimesh, cam: Camera, znear: float) -> bool:
+def _cut_by_border(hull: np.ndarray, cam: Camera, znear: float) -> bool:
     """Whether any of the mesh's hull vertices projects outside the image (or lies behind the
     near plane): only then can the silhouette extend beyond the image."""
-    try:
-        v = np.asarray(mesh.convex_hull.vertices)
-    except Exception:
-        v = np.asarray(mesh.vertices)
-    X = v @ cam.R.T + cam.t
+    X = hull @ cam.R.T + cam.t
     if np.any(X[:, 2] <= znear):
         return True
     K = cam.intrinsics
@@ -217,24 +224,35 @@ class _Renderers:
         self.big.close()
 
 
-def render_frame(spec: SceneSpec, cam: Camera, r: _Renderers, noise: KinectNoise | None, noise_seed) -> tuple:
-    """One view: stored depth (uint16 mm), and per instance in the image: its index in
-    ``spec.placements``, info, mask, visible mask."""
+def render_views(spec: SceneSpec, cam: Camera, r: _Renderers) -> tuple[np.ndarray, list]:
+    """The GL half of a view: the clean scene depth, and per instance in the image its index in
+    ``spec.placements``, its depth rendered alone and (when the image border cuts it) its
+    silhouette on the large canvas."""
     scene, _ = r.image.render(spec.mesh, cam.R, cam.t)
+    views = []
+    for k, p in enumerate(spec.placements):
+        alone, mask = r.image.render(p.mesh, cam.R, cam.t)
+        if mask.any():
+            full = r.big.render(p.mesh, cam.R, cam.t)[1] if _cut_by_border(p.hull, cam, r.ZNEAR) else None
+            views.append((k, alone, full))
+    return scene, views
+
+
+def frame_truth(scene: np.ndarray, views: list, cam: Camera, factor: np.ndarray, noise: KinectNoise | None,
+                noise_seed) -> tuple[np.ndarray, list]:
+    """The CPU half: the stored depth (uint16 mm, noisy unless ``noise`` is None) and per
+    instance ``(index, info, mask, visible mask)``."""
     depth = apply_kinect_noise(scene, cam.intrinsics, noise_seed, noise) if noise is not None else scene
     stored = bop.depth_to_png(depth)
     stored_m = bop.png_to_depth(stored)
-    out = []
-    for k, p in enumerate(spec.placements):
-        alone, mask = r.image.render(p.mesh, cam.R, cam.t)
-        if not mask.any():
-            continue
-        full = None
-        if _cut_by_border(p.mesh, cam, r.ZNEAR):
-            _, full = r.big.render(p.mesh, cam.R, cam.t)
-        info, m, visib = gt_info(scene, stored_m, alone, r.factor, full, (cam.intrinsics.width, cam.intrinsics.height))
-        out.append((k, info, m, visib))
-    return stored, out
+    K = cam.intrinsics
+    return stored, [(k, *gt_info(scene, stored_m, alone, factor, full, (K.width, K.height))) for k, alone, full in views]
+
+
+def render_frame(spec: SceneSpec, cam: Camera, r: _Renderers, noise: KinectNoise | None, noise_seed) -> tuple:
+    """One view: :func:`render_views` then :func:`frame_truth`."""
+    scene, views = render_views(spec, cam, r)
+    return frame_truth(scene, views, cam, r.factor, noise, noise_seed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -321,31 +339,28 @@ def write_camera(root: Path, K: Intrinsics) -> None:
     bop.write_json(path, cam)
 
 
+def output_split(out_root, split: str) -> Path:
+    """``Path(out_root)`` with ``<out_root>/<split>`` created; ``DataError`` naming what is in the way."""
+    root = Path(out_root)
+    if not split or "/" in split or split in (".", ".."):
+        raise DataError(f"split: expected a folder name such as 'test', got {split!r}")
+    for p in (root, root / split):
+        if p.exists() and not p.is_dir():
+            raise DataError(f"output folder {p} exists and is not a folder")
+    (root / split).mkdir(parents=True, exist_ok=True)
+    return root
+
+
 def check_settings(path: Path, settings: dict) -> None:
-    """Refuse to resume into a split made with other settings (frames would be mixed)."""
-    settings = _jsonable(settings)
-    if path.is_file():
-        old = bop.read_json(path)
-        if old != settings:
-            raise DataError(f"{path} was written with other settings ({old}); use a new output folder or delete it")
-    else:
-        bop.write_json(path, settings)
-
-
-def _jsonable(x):
+    """:func:`isa.render.dataset.check_settings` on the settings as JSON gives them back
+    (tuples become lists), so a resumed run compares equal."""
     import json
 
-    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    render_dataset_check(path, json.loads(json.dumps(settings, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))))
 
 
-@dataclass
-class ScenesSummary:
-    """What a run did: frames rendered now, frames already on disk, seconds, scene ids."""
-
-    rendered: int = 0
-    skipped: int = 0
-    seconds: float = 0.0
-    scenes: list[int] = field(default_factory=list)
+#: What a run did: frames rendered now, frames already on disk, seconds, scene ids.
+ScenesSummary = RenderSummary
 
 
 def write_scenes(out_root, split: str, scenes, n_frames: int, noise: KinectNoise | None, seed: int,
@@ -358,6 +373,8 @@ def write_scenes(out_root, split: str, scenes, n_frames: int, noise: KinectNoise
     write_camera(root, intrinsics)
     summary = ScenesSummary()
     renderers = None
+    pool = ThreadPoolExecutor(1)
+    pending: deque = deque()
     try:
         with tqdm(total=n_frames, desc=desc, unit="frame", disable=not progress) as bar:
             for scene_id, n_views, build in scenes:
@@ -374,11 +391,25 @@ def write_scenes(out_root, split: str, scenes, n_frames: int, noise: KinectNoise
                     renderers = _Renderers(intrinsics)
                 for im_id in todo:
                     cam = spec.cameras[im_id]
-                    stored, found = render_frame(spec, cam, renderers, noise, [seed, scene_id, im_id, 2])
-                    folder.commit(im_id, stored, cam, spec, found)
+                    scene, views = render_views(spec, cam, renderers)  # GL stays on this thread
+
+                    def finish(im_id=im_id, cam=cam, scene=scene, views=views, folder=folder, spec=spec, sid=scene_id):
+                        stored, found = frame_truth(scene, views, cam, renderers.factor, noise, [seed, sid, im_id, 2])
+                        folder.commit(im_id, stored, cam, spec, found)
+
+                    # Noise, PNGs and JSON of this view on one worker thread (commits stay in
+                    # order) while the next view renders; at most two views in flight.
+                    pending.append(pool.submit(finish))
+                    while len(pending) > 1:
+                        pending.popleft().result()
+                        summary.rendered += 1
+                        bar.update(1)
+                while pending:
+                    pending.popleft().result()
                     summary.rendered += 1
                     bar.update(1)
     finally:
+        pool.shutdown(wait=True)  # frames in flight are finished whole, never left half-written
         if renderers is not None:
             renderers.close()
     summary.seconds = time.perf_counter() - t0
@@ -422,8 +453,7 @@ def make_scenes(
     if n_scenes < 0 or views_per_scene < 1:
         raise DataError(f"make_scenes: need n_scenes >= 0 and views_per_scene >= 1, got {n_scenes}, {views_per_scene}")
     params = KinectNoise() if noise is True else (noise or None)
-    root = Path(out_root)
-    (root / split).mkdir(parents=True, exist_ok=True)
+    root = output_split(out_root, split)
     check_settings(root / split / SETTINGS_FILE, {
         "kind": "rooms", "source": source.name, "categories": list(source.categories), "seed": seed,
         "views_per_scene": views_per_scene, "noise": asdict(params) if params else None,

@@ -7,6 +7,8 @@ from typing import Sequence
 
 import numpy as np
 
+from isa.exceptions import InvalidValueError
+
 
 def contact_sheet(
     depths: Sequence[np.ndarray],
@@ -29,9 +31,9 @@ def contact_sheet(
 
     n = len(depths)
     if n == 0:
-        raise ValueError("contact_sheet: no images")
+        raise InvalidValueError("contact_sheet: no images")
     if masks is not None and len(masks) != n:
-        raise ValueError(f"contact_sheet: {len(masks)} masks for {n} depth images")
+        raise InvalidValueError(f"contact_sheet: {len(masks)} masks for {n} depth images")
     cols = min(columns, n)
     rows_per = 2 if masks is not None else 1
     rows = int(np.ceil(n / cols)) * rows_per

@@ -14,6 +14,8 @@ from typing import Sequence
 
 import numpy as np
 
+from isa.exceptions import InvalidValueError
+
 
 def _plt():
     import matplotlib
@@ -67,7 +69,7 @@ def matched_grid(
     """Grid of instances (grey surface samples), template links and matched nodes coloured by
     template index; unmatched nodes (completed from the template) are hollow. Returns ``path``."""
     if len(meshes) == 0 or len(meshes) != len(matched):
-        raise ValueError(f"meshes, matched: need equal, non-zero lengths, got {len(meshes)} and {len(matched)}")
+        raise InvalidValueError(f"meshes, matched: need equal, non-zero lengths, got {len(meshes)} and {len(matched)}")
     _, plt = _plt()
     n = len(meshes)
     cols = min(columns, n)
@@ -107,7 +109,7 @@ def com_vs_ssc(
     row with its SSC (blue), same view; with ``matched`` the skeleton is drawn faintly."""
     n = len(meshes)
     if n == 0 or len(coms) != n or len(sscs) != n:
-        raise ValueError(f"meshes, coms, sscs: need equal, non-zero lengths, got {n}, {len(coms)}, {len(sscs)}")
+        raise InvalidValueError(f"meshes, coms, sscs: need equal, non-zero lengths, got {n}, {len(coms)}, {len(sscs)}")
     _, plt = _plt()
     fig = plt.figure(figsize=(2.5 * n, 5.4), dpi=dpi)
     for i in range(n):
@@ -145,7 +147,7 @@ def depth_with_skeleton(
 
     n = len(depths)
     if n == 0 or len(skeletons) != n or len(poses) != n:
-        raise ValueError(f"depths, skeletons, poses: need equal, non-zero lengths, got {n}, {len(skeletons)}, {len(poses)}")
+        raise InvalidValueError(f"depths, skeletons, poses: need equal, non-zero lengths, got {n}, {len(skeletons)}, {len(poses)}")
     matplotlib, plt = _plt()
     cols = min(columns, n)
     rows = int(np.ceil(n / cols))

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from isa.exceptions import InvalidValueError
+
 
 @dataclass
 class SkeletonGraph:
@@ -25,9 +27,9 @@ class SkeletonGraph:
         self.nodes = np.asarray(self.nodes, dtype=np.float64).reshape(-1, 3)
         self.links = np.asarray(self.links, dtype=np.int64).reshape(-1, 2)
         if self.links.size and (self.links.min() < 0 or self.links.max() >= len(self.nodes)):
-            raise ValueError(f"SkeletonGraph: link index out of range for {len(self.nodes)} nodes")
+            raise InvalidValueError(f"SkeletonGraph: link index out of range for {len(self.nodes)} nodes")
         if self.names is not None and len(self.names) != len(self.nodes):
-            raise ValueError(f"SkeletonGraph: {len(self.names)} names for {len(self.nodes)} nodes")
+            raise InvalidValueError(f"SkeletonGraph: {len(self.names)} names for {len(self.nodes)} nodes")
 
     def adjacency(self, weighted: bool = False) -> np.ndarray:
         """Symmetric (N, N) adjacency; with ``weighted`` the link lengths instead of ones."""

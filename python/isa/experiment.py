@@ -32,18 +32,8 @@ from isa.exceptions import DataError
 from isa.forest.model import QUALITIES, ForestParams
 from isa.privileged.mirror import find_mirror, with_mirrored
 from isa.privileged.ssc import CENTRES
-from isa.privileged.symmetry import (
-    canonical_frames,
-    common_subgroup,
-    find_yaw_symmetry,
-    recall_ceiling,
-)
-from isa.render.dataset import (
-    default_test_views,
-    modelnet_objects,
-    procedural_objects,
-    render_dataset,
-)
+from isa.privileged.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling
+from isa.render.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset
 from isa.report.report import RESULTS_SCHEMA, Report
 
 PAPER_TEST_IMAGES = 264
@@ -147,7 +137,7 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     models = {o.obj_id: o.mesh for o in test.objects}
     pts = {k: model_points(m) for k, m in models.items()}
     res["symmetry"] = _symmetry_ceiling(test.objects, test_frames, pts)
-    from isa.detection import box_metadata, category_box
+    from isa.detection.category_boxes import box_metadata, category_box
 
     meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "centre": train.ssc.centre,
             "template": train.ssc.template.to_dict(),
@@ -346,7 +336,7 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
 
 def _real(cfg: ExperimentConfig, out: Path, report: Report) -> None:
     """Table 2 (right): the Q1+Q2+Q3 (else the last) forest of each category on real frames."""
-    from isa.detection import evaluate_real, load_real_frames, real_section
+    from isa.detection.real import evaluate_real, load_real_frames, real_section
 
     q = "Q1+Q2+Q3" if "Q1+Q2+Q3" in cfg.qualities else cfg.qualities[-1]
     models = {c: out / "models" / f"{c}-{q.replace('+', '')}.isa" for c in cfg.categories}
