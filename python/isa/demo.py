@@ -29,7 +29,7 @@ def demo_config(seed: int = 0, categories=CATEGORIES, real: str | None = None) -
         test_images=24, qualities=("Q1", "Q1+Q2+Q3"), stride=6,
         forest=ForestParams(n_trees=4, max_depth=14, n_candidates=40, seed=seed),
         linemod=True, linemod_instances=2, ground_truth_skeletons=False, real=real, seed=seed, samples=8,
-        scenes=2, scene_views=2)
+        scenes=3, scene_views=2)
 
 
 def main(argv: list[str] | None = None) -> None:
