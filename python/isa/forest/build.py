@@ -241,14 +241,16 @@ def training_summary(prepared, *, views: int, stride: int, seed: int, mirror: bo
 
 # -- the whole thing -------------------------------------------------------------------------
 def _check_output(out: Path) -> None:
+    """Refuse an output that cannot be written, before any work (the folder is made later)."""
     if out.is_dir():
         raise DataError(f"-o / out: {out} is a folder; name the model file to write")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(f"-o / out: cannot create the output folder {out.parent} ({exc.strerror})") from None
-    if not os.access(out.parent, os.W_OK | os.X_OK):
-        raise DataError(f"-o / out: the output folder {out.parent} is not writable")
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise DataError(f"-o / out: cannot create the output folder {out.parent}: {parent} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise DataError(f"-o / out: the output folder {parent} is not writable")
 
 
 def train_category(
@@ -297,6 +299,7 @@ def train_category(
 
     from isa.render.dataset import render_dataset
 
+    out.parent.mkdir(parents=True, exist_ok=True)  # checked writable above; inputs are valid by now
     with tempfile.TemporaryDirectory(prefix="isa-train-", dir=None if cache_dir else out.parent) as tmp:
         base = cache_dir / "renders" if cache_dir is not None else Path(tmp)
         data = base / f"{category}-{_render_key(prepared.objects, views, seed)}"
