@@ -159,3 +159,18 @@ def test_modelnet_root_gives_the_experiments_training_instances(shared_data):
     for a, b in zip(ours, theirs, strict=True):
         assert (a.obj_id, a.source, a.scale) == (b.obj_id, b.source, b.scale)
         np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
+
+
+def test_a_y_up_glb_reads_as_the_z_up_mesh_it_came_from(tmp_path):
+    """glTF's convention (y up, front +z) turned into ours (z up, front -y) by --up y."""
+    m = generate("chair", (7, 0)).mesh
+    m.export(tmp_path / "z_up.ply")
+    y_up = m.copy()
+    y_up.vertices = np.c_[m.vertices[:, 0], m.vertices[:, 2], -m.vertices[:, 1]]  # z -> y, front -y -> +z
+    y_up.export(tmp_path / "y_up.glb")
+    ref = build.training_objects([str(tmp_path / "z_up.ply")], "chair", progress=False)[0]
+    got = build.training_objects([str(tmp_path / "y_up.glb")], "chair", up="y", progress=False)[0]
+    assert got.scale == pytest.approx(ref.scale, rel=1e-5)
+    np.testing.assert_allclose(got.mesh.vertices, ref.mesh.vertices, atol=1e-5)
+    with pytest.raises(DataError, match="--up"):
+        build.training_objects([str(tmp_path / "y_up.glb")], "chair", up="x", progress=False)

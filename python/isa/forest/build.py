@@ -10,11 +10,12 @@ and seed give the same model bytes on either path.
 
 Sources: files, folders and globs of meshes trimesh reads (OFF, OBJ, PLY, STL, GLB), a ModelNet10
 root (its training instances of the category, the paper's protocol count unless ``instances``),
-or ``procedural=N`` generated instances. Meshes must be upright (z up) with their front towards
--y, as ModelNet10's are. Any category name: the paper's four are sized by
-:data:`isa.categories.SIZES` and use the procedural skeleton template; any other needs
-``height`` (metres) and gets a template built from its own instances' extracted skeletons
-(:func:`isa.privileged.matching.template_from_instances`) and the centre of mass as origin.
+or ``procedural=N`` generated instances. Meshes must be upright with their front towards -y and
+z up, as ModelNet10's are, or y up and front +z (glTF's convention: ``up="y"``). Any category
+name: the paper's four are sized by :data:`isa.categories.SIZES` and use the procedural skeleton
+template; any other needs ``height`` (metres) and gets a template built from its own instances'
+extracted skeletons (:func:`isa.privileged.matching.template_from_instances`) and the centre of
+mass as origin.
 
 ``cache``: a folder holding extracted skeletons (by mesh content), the category template and the
 rendered views (by instances + views + seed); a rerun with it skips everything already there.
@@ -107,10 +108,20 @@ def _check_height(category: str, height: float | None) -> None:
         raise DataError(f"--height / height=: a positive height in metres, got {height!r}")
 
 
-def _sized(path: Path, category: str, height: float | None, seed) -> tuple[trimesh.Trimesh, float]:
-    """``path``'s mesh in metres, centred on its box: scaled to ``height`` when given, else to a
-    real size of ``category`` drawn from ``seed`` (:func:`isa.data.meshes.prepare_mesh`)."""
+#: File conventions of the up axis (``up=``): "z" is ours (z up, front -y); "y" is glTF's (y up,
+#: front +z), turned into ours by +90 degrees about x.
+UP_AXES: dict[str, np.ndarray] = {
+    "z": np.eye(4),
+    "y": np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]]),
+}
+
+
+def _sized(path: Path, category: str, height: float | None, seed, up: str = "z") -> tuple[trimesh.Trimesh, float]:
+    """``path``'s mesh in metres, z up, centred on its box: scaled to ``height`` when given, else
+    to a real size of ``category`` drawn from ``seed`` (:func:`isa.data.meshes.prepare_mesh`)."""
     mesh = load_mesh(path)
+    if up != "z":
+        mesh.apply_transform(UP_AXES[up])
     if height is None:
         return prepare_mesh(mesh, category, seed=seed)
     z = float(mesh.extents[2])
@@ -122,8 +133,11 @@ def _sized(path: Path, category: str, height: float | None, seed) -> tuple[trime
 
 
 def training_objects(meshes, category: str, *, procedural: int | None = None, instances: int | None = None,
-                     height: float | None = None, seed: int = 0, progress: bool = True) -> list[ObjectSpec]:
-    """The training instances named by ``meshes`` (or ``procedural``), sized, with ``obj_id`` 1..n."""
+                     height: float | None = None, up: str = "z", seed: int = 0, progress: bool = True) -> list[ObjectSpec]:
+    """The training instances named by ``meshes`` (or ``procedural``), sized, with ``obj_id`` 1..n;
+    ``up``: the files' up axis (:data:`UP_AXES`)."""
+    if up not in UP_AXES:
+        raise DataError(f"--up / up=: one of {', '.join(UP_AXES)}, got {up!r}")
     if procedural is not None:
         if meshes:
             raise DataError("give meshes or --procedural N, not both")
@@ -142,7 +156,7 @@ def training_objects(meshes, category: str, *, procedural: int | None = None, in
         files = mesh_files(meshes)[: instances or None]
     out = []
     for i, f in enumerate(tqdm(files, desc=f"load {category}", unit="mesh", disable=not progress, leave=False)):
-        mesh, s = _sized(f, category, height, [seed, i])
+        mesh, s = _sized(f, category, height, [seed, i], up)
         out.append(ObjectSpec(1 + i, category, mesh, str(f), s))
     return out
 
@@ -232,11 +246,12 @@ def model_metadata(prepared, quality: str, training: dict) -> dict:
 
 
 def training_summary(prepared, *, views: int, stride: int, seed: int, mirror: bool, canonical: bool,
-                     images: int, parts: int, height: float | None = None, template: str = "procedural") -> dict:
+                     images: int, parts: int, height: float | None = None, up: str = "z",
+                     template: str = "procedural") -> dict:
     """The ``training`` entry of a model's metadata."""
     return {"instances": [o.source for o in prepared.objects], "views": views, "stride": stride, "seed": seed,
             "mirror": mirror, "canonical": canonical, "images": images, "parts": parts, "height": height,
-            "template": template}
+            "up": up, "template": template}
 
 
 # -- the whole thing -------------------------------------------------------------------------
@@ -257,7 +272,7 @@ def train_category(
     meshes, category: str, out: str | os.PathLike, *, procedural: int | None = None, instances: int | None = None,
     views: int = PAPER_VIEWS, stride: int = DEFAULT_STRIDE, quality: str = "Q1+Q2+Q3", trees: int = 10,
     depth: int = ForestParams.max_depth, candidates: int = ForestParams.n_candidates, mirror: bool = False,
-    canonical: bool = False, height: float | None = None, centre: str | None = None, seed: int = 0,
+    canonical: bool = False, height: float | None = None, up: str = "z", centre: str | None = None, seed: int = 0,
     cache: str | os.PathLike | None = None, progress: bool = True,
 ) -> Path:
     """Train a ``category`` model on ``meshes`` (files, folders, globs or a ModelNet10 root; or
@@ -266,7 +281,8 @@ def train_category(
     ``views`` rendered views per instance (seeded by ``seed``), parts every ``stride`` pixels,
     a ``trees``-tree forest of criterion ``quality`` (depth ``depth``, ``candidates`` features per
     node), probes and vote kernel scaled to the objects' size. ``height`` (metres) sizes every
-    instance (required for categories without a size table). ``centre``: the origin rule
+    instance (required for categories without a size table); ``up``: the files' up axis, "z"
+    (ModelNet's) or "y" (glTF's, front +z). ``centre``: the origin rule
     (:data:`isa.privileged.ssc.CENTRES`; default the category's, the centre of mass for others).
     ``cache``: folder that makes reruns skip finished work (module docstring). Errors
     (``DataError``) name the file or argument at fault and come before any output is written; the
@@ -290,7 +306,7 @@ def train_category(
         except OSError as exc:
             raise DataError(f"--cache: cannot create {cache_dir} ({exc.strerror})") from None
     objects = training_objects(meshes, category, procedural=procedural, instances=instances, height=height,
-                               seed=seed, progress=progress)
+                               up=up, seed=seed, progress=progress)
     extract = SkeletonCache(cache_dir / "skeletons" if cache_dir is not None else None)
     template, template_source = _template(category, objects, extract, cache_dir, progress)
     centre = centre or CENTRE.get(category, "com")
@@ -310,7 +326,7 @@ def train_category(
         params = pipeline.scaled_params(params, ts, frames[0].intrinsics.fx)
         summary = training_summary(prepared, views=views, stride=stride, seed=seed, mirror=mirror,
                                    canonical=canonical, images=len(forest_frames), parts=len(ts), height=height,
-                                   template=template_source)
+                                   up=up, template=template_source)
     forest = pipeline.train_forest(ts, params, metadata=model_metadata(prepared, params.quality, summary),
                                    progress=progress)
     forest.save(out)  # atomic: a temporary file renamed over ``out``
@@ -327,6 +343,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--procedural", type=int, metavar="N", help="train on N procedural instances instead of meshes")
     p.add_argument("--instances", type=int, help="use only the first N instances (ModelNet: default the paper's count)")
     p.add_argument("--height", type=float, help="height of every instance in metres (needed for other categories)")
+    p.add_argument("--up", choices=tuple(UP_AXES), default="z",
+                   help="the files' up axis: z (ModelNet, front -y) or y (glTF/GLB, front +z)")
     p.add_argument("--views", type=int, default=PAPER_VIEWS, help="rendered views per instance (paper: 89)")
     p.add_argument("--stride", type=int, default=DEFAULT_STRIDE, help="part stride in pixels on training images")
     p.add_argument("--quality", default="Q1+Q2+Q3", choices=QUALITIES, help="split criterion")
@@ -348,7 +366,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         path = train_category(a.meshes or None, a.category, a.out, procedural=a.procedural, instances=a.instances,
                               views=a.views, stride=a.stride, quality=a.quality, trees=a.trees, depth=a.depth,
-                              candidates=a.candidates, mirror=a.mirror, canonical=a.canonical, height=a.height,
+                              candidates=a.candidates, mirror=a.mirror, canonical=a.canonical, height=a.height, up=a.up,
                               centre=a.centre, seed=a.seed, cache=a.cache, progress=not a.quiet)
     except IsaError as exc:
         ap.exit(2, f"error: {exc}\n")
