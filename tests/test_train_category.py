@@ -13,10 +13,10 @@ import trimesh
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from isa.data.procedural import generate  # noqa: E402
-from isa.exceptions import DataError  # noqa: E402
-from isa.forest import build  # noqa: E402
-from isa.forest.model import Forest  # noqa: E402
+from isa.data.procedural import generate
+from isa.exceptions import DataError
+from isa.forest import build
+from isa.forest.model import Forest
 
 TINY = ["--views", "6", "--stride", "8", "--trees", "2", "--depth", "6", "--candidates", "8"]
 
@@ -105,18 +105,18 @@ def test_bad_input_is_refused_naming_the_file_or_flag(mesh_folder, tmp_path, cap
     empty.mkdir()
     (empty / "notes.txt").write_text("no meshes here")
 
-    cases = [
-        (dict(meshes=[str(bad)], category="chair"), "broken.obj"),
-        (dict(meshes=[str(empty)], category="chair"), str(empty)),
-        (dict(meshes=[str(tmp_path / "missing")], category="chair"), "missing"),
-        (dict(meshes=[str(tmp_path / "*.stl")], category="chair"), "*.stl"),
-        (dict(meshes=[str(mesh_folder)], category="stool"), "--height"),
-        (dict(meshes=[str(mesh_folder)], category="stool", height=-1.0), "--height"),
+    cases = [  # (meshes, category, height, what the message must name)
+        (bad, "chair", None, "broken.obj"),
+        (empty, "chair", None, str(empty)),
+        (tmp_path / "missing", "chair", None, "missing"),
+        (tmp_path / "*.stl", "chair", None, "*.stl"),
+        (mesh_folder, "stool", None, "--height"),
+        (mesh_folder, "stool", -1.0, "--height"),
     ]
-    for kw, named in cases:
+    for meshes, category, height, named in cases:
         with pytest.raises(DataError) as exc:
-            build.train_category(kw["meshes"], kw["category"], out, height=kw.get("height"), progress=False)
-        assert named in str(exc.value), (kw, str(exc.value))
+            build.train_category([str(meshes)], category, out, height=height, progress=False)
+        assert named in str(exc.value), (meshes, str(exc.value))
     assert not out.parent.exists()  # not even the output folder
 
     # Output folder that cannot be created (a file is in the way) or written.

@@ -92,10 +92,12 @@ def _modelnet_root(meshes, category: str) -> Path | None:
     from isa.data.modelnet import find_root
 
     try:
-        root = find_root(items[0])
+        root = find_root(Path(items[0]))
     except DataError:
         return None
-    return root if (root / category / "train").is_dir() else None
+    if not (root / category / "train").is_dir():
+        raise DataError(f"{items[0]} is a ModelNet10 root without a {category}/train folder")
+    return root
 
 
 def _check_height(category: str, height: float | None) -> None:
@@ -219,7 +221,11 @@ def augmented_frames(frames, objects: Sequence[ObjectSpec], mirror: bool = False
     """Training frames with mirrored copies of mirror-symmetric instances' views (``mirror``) and
     turn-symmetric instances labelled canonically (``canonical``), and counts of both."""
     from isa.privileged.mirror import find_mirror, with_mirrored
-    from isa.privileged.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry
+    from isa.privileged.symmetry import (
+        canonical_frames,
+        common_subgroup,
+        find_yaw_symmetry,
+    )
 
     info: dict = {}
     if mirror:
