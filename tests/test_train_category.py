@@ -119,6 +119,11 @@ def test_bad_input_is_refused_naming_the_file_or_flag(mesh_folder, tmp_path, cap
         assert named in str(exc.value), (meshes, str(exc.value))
     assert not out.parent.exists()  # not even the output folder
 
+    with pytest.raises(DataError, match="--height"):
+        build.train_category(None, "chair", out, procedural=2, height=0.9, progress=False)
+    with pytest.raises(DataError, match="not both"):
+        build.train_category([str(mesh_folder)], "chair", out, procedural=2, progress=False)
+
     # Output folder that cannot be created (a file is in the way) or written.
     blocker = tmp_path / "file"
     blocker.write_text("x")

@@ -143,6 +143,8 @@ def training_objects(meshes, category: str, *, procedural: int | None = None, in
     if procedural is not None:
         if meshes:
             raise DataError("give meshes or --procedural N, not both")
+        if height is not None or up != "z":
+            raise DataError("--height and --up apply to mesh files; procedural instances come in real size, z up")
         if isinstance(procedural, bool) or not isinstance(procedural, int) or procedural < 1:
             raise DataError(f"--procedural: a positive number of instances, got {procedural!r}")
         return procedural_training(category, procedural, seed)
