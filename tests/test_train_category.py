@@ -72,7 +72,7 @@ def test_folder_of_obj_and_ply_trains_a_model_that_finds_an_instance(mesh_folder
 
 @pytest.mark.slow
 def test_function_command_and_experiment_write_the_same_bytes_and_rerun_uses_the_cache(tmp_path, monkeypatch):
-    from isa.evaluation import experiment
+    from isa import experiment
 
     exp = tmp_path / "exp"
     experiment.main(["--procedural", "--out", str(exp), "--categories", "chair", "--train-instances", "2",

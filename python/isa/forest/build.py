@@ -42,9 +42,9 @@ from isa.data.meshes import MESH_EXTENSIONS, load_mesh, prepare_mesh, to_object_
 from isa.exceptions import DataError, IsaError
 from isa.forest.model import QUALITIES, ForestParams
 from isa.privileged.skeleton import extract_skeleton
-from isa.skeleton_graph import SkeletonGraph
 from isa.privileged.ssc import CENTRES
 from isa.render.dataset import ObjectSpec, procedural_objects
+from isa.skeleton_graph import SkeletonGraph
 
 #: Part stride on training images (the experiment's default).
 DEFAULT_STRIDE = 4
