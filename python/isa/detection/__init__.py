@@ -40,7 +40,8 @@ import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(
     __name__,
-    submodules=["planes", "category_boxes", "hypotheses", "training", "real", "cli"],
+    submodules=["planes", "category_boxes", "hypotheses", "training", "real", "cli", "shapes", "verify", "refine",
+                "gravity", "multi"],
     submod_attrs={
         "planes": [
             "PlaneParams", "Plane", "find_planes", "PlaneRemoval", "remove_planes",
@@ -49,7 +50,7 @@ __getattr__, __dir__, __all__ = _lazy.attach(
             "CategoryBox", "category_box", "box_metadata", "model_box",
         ],
         "hypotheses": [
-            "DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect", "detect_frame",
+            "DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect_category", "detect_frame",
         ],
         "training": [
             "train_detector",
@@ -60,5 +61,11 @@ __getattr__, __dir__, __all__ = _lazy.attach(
         "cli": [
             "main",
         ],
+        "shapes": ["ShapeLibrary", "shape_library"],
+        "verify": ["VerifyParams", "Verification", "DepthEvidence", "verify_pose"],
+        "refine": ["RefineParams", "Refinement", "refine_pose", "upright_points"],
+        "gravity": ["GravityEstimate", "estimate_gravity"],
+        "multi": ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
+                  "nms_across", "write_bop_csv"],
     },
 )

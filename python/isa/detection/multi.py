@@ -1,0 +1,310 @@
+"""Every category in one pass: ``detect(depth, intrinsics, models, gravity=None)``.
+
+1. **Gravity**: given, else the floor's normal, else the votes' tilt (:mod:`isa.detection.gravity`).
+2. **Planes**: floor and walls set to missing depth for the voting (the forests were trained on
+   isolated objects), found once for all categories (:func:`isa.detection.planes.remove_planes`).
+3. **Votes**: each category forest on the cleaned depth gives ranked 6D hypotheses; each is
+   snapped upright (tilt limit), rejected when its bottom is far from the floor, set on it.
+4. **Verification** (:mod:`isa.detection.verify`) on the *raw* depth against each of the category's
+   training shapes; the best shape gives the score (comparable across categories and frames)
+   and the size.
+5. **Refinement** (:mod:`isa.detection.refine`) of the best hypotheses: upright ICP with the best shape,
+   then verified again; kept when the score does not drop.
+6. **NMS across categories**: one ranked list; a box overlapping a better one (3D IoU over
+   ``nms_iou`` or over ``nms_overlap`` of the smaller box's volume) is dropped, whatever its
+   category, since a place holds one object.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from isa.camera import Intrinsics
+from isa.detection.gravity import GravityEstimate, estimate_gravity
+from isa.detection.refine import RefineParams, refine_pose, upright_points
+from isa.detection.shapes import ShapeLibrary
+from isa.detection.verify import DepthEvidence, VerifyParams, verify_pose
+from isa.evaluation.boxes3d import Box3D, box_from_pose, footprint_intersection_area, iou_3d
+from isa.exceptions import DataError
+
+__all__ = ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
+           "nms_across", "write_bop_csv"]
+
+
+@dataclass(frozen=True, eq=False)
+class CategoryModel:
+    """A category's forest, its box (size and origin offset, :class:`isa.detection.CategoryBox`)
+    and its shape library (None: no verification, the forest's score and box are used)."""
+
+    category: str
+    forest: Any
+    box: Any
+    shapes: ShapeLibrary | None = None
+
+
+def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None,
+               category: str | None = None) -> CategoryModel:
+    """A :class:`CategoryModel` from a model file; ``shapes`` a library or its ``.npz`` (default:
+    ``<model>.shapes.npz`` beside the model when it exists)."""
+    from isa.detection.category_boxes import model_box
+    from isa.forest.model import Forest
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: model file not found")
+    forest = Forest.load(path)
+    box = model_box(forest, str(path))
+    if shapes is None and path.with_suffix(".shapes.npz").is_file():
+        shapes = path.with_suffix(".shapes.npz")
+    if shapes is not None and not isinstance(shapes, ShapeLibrary):
+        shapes = ShapeLibrary.load(shapes)
+    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes)
+
+
+@dataclass(frozen=True)
+class DetectParams:
+    """``stride``, ``max_hypotheses`` go to each forest's voting; ``max_tilt_deg`` rejects
+    hypotheses tilted further from up; ``floor_gap`` rejects those whose bottom is further from
+    the found floor (and the rest are set on it); ``verify`` / ``refine`` None switch the steps
+    off; ``refine_top`` hypotheses per category are refined; ``nms_iou`` / ``nms_overlap`` the
+    cross-category suppression; ``max_detections`` per frame; ``min_score`` drops weaker ones."""
+
+    stride: int = 4
+    max_hypotheses: int = 20
+    max_tilt_deg: float | None = 30.0
+    remove_planes: bool = True
+    floor_gap: float | None = 0.3
+    verify: VerifyParams | None = field(default_factory=VerifyParams)
+    refine: RefineParams | None = field(default_factory=RefineParams)
+    refine_top: int = 5
+    nms_iou: float = 0.25
+    nms_overlap: float = 0.6
+    max_detections: int = 20
+    min_score: float = -math.inf
+    predict: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class SceneDetection:
+    """One detected object: ``category``; pose ``R`` (3, 3), ``t`` (3,) metres (object to camera,
+    ``t`` the category's origin); ``size`` (3,) its extents along its own x, y, z; ``box_centre``
+    (3,) that box's centre in the object frame; ``score`` (verification score when shapes are
+    given, else the forest's); ``support`` the votes behind it; ``meta`` (forest score, shape,
+    refinement)."""
+
+    category: str
+    R: np.ndarray
+    t: np.ndarray
+    size: np.ndarray
+    box_centre: np.ndarray
+    score: float
+    support: int
+    meta: dict = field(default_factory=dict)
+
+    def box(self, R_gravity: np.ndarray) -> Box3D:
+        """The gravity-aligned box in the upright frame."""
+        return box_from_pose(self.R, self.t, self.size, -self.box_centre, R_gravity, self.category, self.score)
+
+    def to_dict(self) -> dict:
+        return {"category": self.category, "R": np.asarray(self.R).tolist(), "t": np.asarray(self.t).tolist(),
+                "size": np.asarray(self.size).tolist(), "box_centre": np.asarray(self.box_centre).tolist(),
+                "score": float(self.score), "support": int(self.support),
+                "meta": {k: v for k, v in self.meta.items() if isinstance(v, (int, float, str, bool, type(None)))}}
+
+
+@dataclass(eq=False)
+class DetectResult:
+    """``detections`` best first; ``gravity`` the rotation used and its source; ``seconds`` per step."""
+
+    detections: list[SceneDetection]
+    gravity: GravityEstimate
+    floor_height: float | None
+    seconds: dict[str, float]
+
+
+def _overlap(a: Box3D, b: Box3D) -> tuple[float, float]:
+    """3D IoU and intersection over the smaller volume."""
+    za0, za1 = a.z_range
+    zb0, zb1 = b.z_range
+    dz = min(za1, zb1) - max(za0, zb0)
+    if dz <= 0:
+        return 0.0, 0.0
+    inter = footprint_intersection_area(a, b) * dz
+    if inter <= 0:
+        return 0.0, 0.0
+    return iou_3d(a, b), inter / min(a.volume, b.volume)
+
+
+def nms_across(boxes: Sequence[Box3D], iou: float = 0.25, overlap: float = 0.6) -> list[int]:
+    """Greedy NMS over boxes of any category, best score first: a box is dropped when its IoU
+    with a kept one exceeds ``iou`` or their intersection exceeds ``overlap`` of the smaller
+    one's volume (a chair box inside a bed's). Returns the kept indices, best first."""
+    order = sorted(range(len(boxes)), key=lambda i: -boxes[i].score)
+    kept: list[int] = []
+    for i in order:
+        if all((lambda o: o[0] <= iou and o[1] <= overlap)(_overlap(boxes[i], boxes[k])) for k in kept):
+            kept.append(i)
+    return kept
+
+
+def _to_metres(depth: np.ndarray) -> np.ndarray:
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"detect: depth must be (H, W), got {depth.shape}")
+    if depth.dtype == np.uint16:
+        return depth.astype(np.float32) / 1000.0
+    return np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def _models(models) -> list[CategoryModel]:
+    if isinstance(models, CategoryModel):
+        return [models]
+    if isinstance(models, Mapping):
+        out = []
+        for cat, m in models.items():
+            m = load_model(m, category=cat) if isinstance(m, (str, Path)) else m
+            out.append(m if isinstance(m, CategoryModel) else CategoryModel(cat, m, _box(m, cat)))
+        return out
+    return [load_model(m) if isinstance(m, (str, Path)) else m for m in models]
+
+
+def _box(forest, cat):
+    from isa.detection.category_boxes import model_box
+
+    return model_box(forest, f"{cat} model")
+
+
+def _candidates(model: CategoryModel, hyps, Rg, floor, params: DetectParams) -> list[dict]:
+    from isa.detection.hypotheses import upright_rotation
+
+    out = []
+    up_z = Rg[2]
+    for rank, h in enumerate(hyps):
+        R_up, _, tilt = upright_rotation(h["R"], Rg)
+        if params.max_tilt_deg is not None and tilt > params.max_tilt_deg:
+            continue
+        t = np.asarray(h["t"], dtype=float)
+        if floor is not None:
+            gap = float(up_z @ t) - model.box.ssc_offset[2] - model.box.size[2] / 2 - floor  # box bottom - floor
+            if params.floor_gap is not None and abs(gap) > params.floor_gap:
+                continue
+            t = t - gap * up_z  # set it down on the floor
+        out.append({"R": R_up, "t": t, "forest_score": float(h["score"]), "support": int(h.get("support", 0)),
+                    "rank": rank, "tilt_deg": tilt})
+    return out
+
+
+def _score_shapes(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, up_z: np.ndarray,
+                  floor: float | None) -> None:
+    """Verify every shape at the candidate's pose (each set on the floor when there is one) and
+    keep the best: its score, index and translation."""
+    best = None
+    for s in range(len(shapes)):
+        t = cand["t"]
+        if floor is not None:
+            t = t - (float(up_z @ t) + shapes.bounds[s, 0, 2] - floor) * up_z
+        v = verify_pose(evidence, cand["R"], t, shapes.points[s], shapes.spacing[s], params)
+        if best is None or v.score > best[0].score:
+            best = (v, s, t)
+    cand.update(score=best[0].score, shape=best[1], t=best[2], verification=best[0])
+
+
+def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarray | None = None,
+           params: DetectParams = DetectParams()) -> DetectResult:
+    """Every category of ``models`` in one depth frame, one ranked list (module docstring).
+
+    ``depth`` (H, W) float metres or uint16 mm (0 = missing); ``models``: a mapping category ->
+    model path / :class:`isa.forest.model.Forest` / :class:`CategoryModel`, or a sequence of
+    :class:`CategoryModel`; ``gravity`` the camera -> upright rotation when known.
+    """
+    from isa.detection.planes import PlaneParams, remove_planes
+
+    secs: dict[str, float] = {}
+    t0 = time.perf_counter()
+    depth = _to_metres(depth)
+    if depth.shape != (intrinsics.height, intrinsics.width):
+        raise ValueError(f"detect: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
+                         f"{intrinsics.width}x{intrinsics.height}")
+    ms = _models(models)
+    grav = estimate_gravity(depth, intrinsics, gravity)
+    Rg = grav.R
+    secs["gravity"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    planes = remove_planes(depth, intrinsics, Rg, PlaneParams()) if params.remove_planes else None
+    clean = planes.depth if planes is not None else depth
+    floor = planes.floor.height if planes is not None and planes.floor is not None else None
+    secs["planes"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    per_model = []
+    for m in ms:
+        kw = {"stride": params.stride, "max_hypotheses": params.max_hypotheses, **params.predict}
+        per_model.append(m.forest.predict(clean, intrinsics, **kw))
+    secs["votes"] = time.perf_counter() - t0
+    if grav.source == "level" and any(per_model):  # neither given nor a floor: the votes' tilt
+        grav = estimate_gravity(np.zeros_like(depth), intrinsics, None, [h for hs in per_model for h in hs])
+        Rg = grav.R
+    t0 = time.perf_counter()
+    evidence = DepthEvidence(depth, intrinsics) if params.verify is not None else None
+    pts_up = upright_points(depth, intrinsics, Rg, floor_height=floor) if params.refine is not None else None
+    dets: list[SceneDetection] = []
+    t_refine = 0.0
+    for m, hyps in zip(ms, per_model, strict=True):
+        cands = _candidates(m, hyps, Rg, floor, params)
+        use_shapes = m.shapes is not None and evidence is not None
+        for c in cands:
+            if use_shapes:
+                _score_shapes(evidence, c, m.shapes, params.verify, Rg[2], floor)
+            else:
+                c.update(score=c["forest_score"], shape=None)
+        if use_shapes and params.refine is not None:
+            t1 = time.perf_counter()
+            for c in sorted(cands, key=lambda c: -c["score"])[: params.refine_top]:
+                s = c["shape"]
+                rp = replace(params.refine, fix_height=True) if floor is not None else params.refine
+                r = refine_pose(pts_up, intrinsics, c["R"], c["t"], m.shapes.points[s], m.shapes.bounds[s], Rg, rp,
+                                m.shapes.normals[s])
+                trial = {**c, "R": r.R, "t": r.t}
+                _score_shapes(evidence, trial, m.shapes, params.verify, Rg[2], floor)
+                if trial["score"] >= c["score"]:
+                    c.update(trial, refined=True, refine_rms=r.rms)
+            t_refine += time.perf_counter() - t1
+        for c in cands:
+            if c["score"] < params.min_score:
+                continue
+            if c["shape"] is not None:
+                size, centre = m.shapes.sizes[c["shape"]], m.shapes.centres[c["shape"]]
+            else:
+                size, centre = m.box.size, -m.box.ssc_offset
+            meta = {k: c[k] for k in ("forest_score", "rank", "tilt_deg") if k in c}
+            meta.update(shape=c["shape"], refined=bool(c.get("refined", False)))
+            dets.append(SceneDetection(m.category, c["R"], c["t"], np.array(size), np.array(centre), float(c["score"]),
+                                       c["support"], meta))
+    secs["refine"] = t_refine
+    boxes = [d.box(Rg) for d in dets]
+    keep = nms_across(boxes, params.nms_iou, params.nms_overlap)[: params.max_detections]
+    secs["verify"] = time.perf_counter() - t0 - t_refine
+    return DetectResult([dets[i] for i in keep], grav, floor, secs)
+
+
+def write_bop_csv(path: str | Path, rows: Sequence[tuple[int, int, float, SceneDetection]],
+                  obj_ids: Mapping[str, int]) -> Path:
+    """BOP results CSV (``scene_id,im_id,obj_id,score,R,t,time``; R row-major, t in mm):
+    ``rows`` of (scene_id, im_id, seconds, detection); ``obj_ids`` category -> the obj_id written."""
+    path = Path(path)
+    lines = ["scene_id,im_id,obj_id,score,R,t,time"]
+    for scene_id, im_id, secs, d in rows:
+        if d.category not in obj_ids:
+            raise DataError(f"{path}: no obj_id for category {d.category!r}")
+        R = " ".join(f"{x:.6f}" for x in np.asarray(d.R).reshape(-1))
+        t = " ".join(f"{1000 * x:.3f}" for x in np.asarray(d.t).reshape(-1))
+        lines.append(f"{scene_id},{im_id},{obj_ids[d.category]},{d.score:.6f},{R},{t},{secs:.4f}")
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(path)
+    return path

@@ -1,0 +1,156 @@
+"""Verification: how well the observed depth agrees with a category shape at a hypothesis' pose.
+
+The shape's surface samples are moved to the pose and z-buffered on a grid of image cells (so
+only the surface the camera would see counts, self-occlusion included). Each visible cell is
+compared with the observed depth at its pixel, within the sensor tolerance ``max(base, k z^2)``:
+
+- **agree**: the observed surface is where the shape's is;
+- **violate**: the observed surface is well *behind* the shape's: we see through where the
+  object would be, so it is not there (free space);
+- **occluded**: the observed surface is in front (something hides the object: no evidence);
+- **missing**: no depth at that pixel (no evidence).
+
+The score is ``(agree - violation_weight * violate) / (agree + violate + occluded)``: the share
+of the shape's visible surface that the image confirms, minus what it refutes. It is a fraction
+in ``[-violation_weight, 1]`` whatever the frame, the category or the object's distance, so
+scores of different categories and frames can be ranked together. Verification runs on the raw
+depth (floor and walls kept): a hypothesis floating in front of a wall or sinking into the floor
+is refuted by exactly those pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from isa.camera import Intrinsics
+
+__all__ = ["VerifyParams", "Verification", "DepthEvidence", "visible_points", "verify_pose", "verify_shapes"]
+
+
+@dataclass(frozen=True)
+class VerifyParams:
+    """``tolerance`` ``(base, k)``: a cell agrees within ``max(base, k * z**2)`` metres (Kinect
+    noise grows with z squared; as :class:`isa.detection.planes.PlaneParams`); ``violation_weight``
+    what one seen-through cell costs against one agreeing; ``cell_spacing`` the grid cell side
+    in units of the shape's point spacing (2 leaves no holes in the z-buffer); ``min_cell_px``
+    the smallest cell in pixels; ``min_cells`` the visible cells below which a hypothesis scores
+    0 (too little of it in the image to say); ``lateral`` (metres) how far sideways the observed
+    surface may be from the shape's and still agree (instances of a category differ from its
+    training shapes: a leg 3 cm off is still a leg), also the reach of a free-space violation:
+    only a cell whose whole ``lateral`` neighbourhood is seen through is refuted."""
+
+    tolerance: tuple[float, float] = (0.03, 0.0045)
+    violation_weight: float = 1.0
+    cell_spacing: float = 2.0
+    min_cell_px: int = 2
+    min_cells: int = 20
+    lateral: float = 0.03
+
+
+@dataclass(frozen=True)
+class Verification:
+    """Counts of visible shape cells per outcome and the score (see the module docstring)."""
+
+    score: float
+    agree: int
+    violate: int
+    occluded: int
+    missing: int
+
+    @property
+    def cells(self) -> int:
+        return self.agree + self.violate + self.occluded + self.missing
+
+
+class DepthEvidence:
+    """A depth frame prepared for verification: each shape cell is compared with the observed
+    depth on a 5 x 5 grid of pixels spanning ``lateral`` metres around its pixel (computed once
+    per frame, shared by every hypothesis and category)."""
+
+    GRID = 5
+
+    def __init__(self, depth: np.ndarray, intrinsics: Intrinsics):
+        self.depth = np.ascontiguousarray(depth, dtype=np.float32)
+        self.intrinsics = intrinsics
+        g = np.arange(self.GRID) - self.GRID // 2
+        self._offsets = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)  # (K, 2) unit steps
+
+    def window(self, uv: np.ndarray, lateral: float, z: float) -> np.ndarray:
+        """Observed depth (M, K) on the grid around each pixel (M, 2) reaching ``lateral`` metres
+        at depth ``z`` (0 where missing or outside the image)."""
+        half = lateral * self.intrinsics.fx / max(z, 1e-3)
+        step = half / (self.GRID // 2) if self.GRID > 1 else 0.0
+        off = np.round(self._offsets * step).astype(np.int64)
+        u = uv[:, :1] + off[None, :, 0]
+        v = uv[:, 1:] + off[None, :, 1]
+        h, w = self.depth.shape
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        out = self.depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].astype(float)
+        out[~inside] = 0.0
+        return out
+
+
+def _cell_px(spacing: float, z: float, intrinsics: Intrinsics, params: VerifyParams) -> int:
+    return max(params.min_cell_px, int(round(params.cell_spacing * spacing * intrinsics.fx / max(z, 1e-3))))
+
+
+def visible_points(points_cam: np.ndarray, intrinsics: Intrinsics, cell_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """The front-most point per ``cell_px`` image cell of camera-frame points (N, 3): their
+    indices (M,) and pixels (M, 2) int (u, v); points behind the camera or outside the image
+    are dropped."""
+    z = points_cam[:, 2]
+    ok = z > 0.05
+    idx = np.flatnonzero(ok)
+    zi = z[idx]
+    u = np.floor(intrinsics.fx * points_cam[idx, 0] / zi + intrinsics.cx + 0.5).astype(np.int64)
+    v = np.floor(intrinsics.fy * points_cam[idx, 1] / zi + intrinsics.cy + 0.5).astype(np.int64)
+    inside = (u >= 0) & (u < intrinsics.width) & (v >= 0) & (v < intrinsics.height)
+    idx, u, v, zi = idx[inside], u[inside], v[inside], zi[inside]
+    if len(idx) == 0:
+        return idx, np.zeros((0, 2), dtype=np.int64)
+    cols = (intrinsics.width + cell_px - 1) // cell_px
+    cell = (v // cell_px) * cols + u // cell_px
+    order = np.lexsort((zi, cell))  # by cell, then nearest first
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = cell[order[1:]] != cell[order[:-1]]
+    keep = order[first]
+    return idx[keep], np.column_stack([u[keep], v[keep]])
+
+
+def verify_pose(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, points: np.ndarray,
+                spacing: float, params: VerifyParams = VerifyParams()) -> Verification:
+    """Verify one shape (object-frame ``points`` (N, 3), mean ``spacing``) at pose ``(R, t)``
+    against a frame's :class:`DepthEvidence`."""
+    intrinsics = evidence.intrinsics
+    R = np.asarray(R, dtype=float).reshape(3, 3)
+    t = np.asarray(t, dtype=float).reshape(3)
+    pc = np.einsum("ij,nj->ni", R, np.asarray(points, dtype=float)) + t  # einsum: see refine._apply
+    idx, uv = visible_points(pc, intrinsics, _cell_px(spacing, float(t[2]), intrinsics, params))
+    if len(idx) == 0:
+        return Verification(0.0, 0, 0, 0, 0)
+    zm = pc[idx, 2]
+    zo = evidence.window(uv, params.lateral, float(t[2]))  # (M, K)
+    base, k = params.tolerance
+    tol = np.maximum(base, k * zm * zm)[:, None]
+    valid = zo > 0
+    d = zo - zm[:, None]
+    agree_m = (valid & (np.abs(d) < tol)).any(1)  # a surface where the shape's is, nearby
+    any_valid = valid.any(1)
+    behind = (valid & (d >= tol)).sum(1)
+    violate_m = ~agree_m & any_valid & (behind == valid.sum(1))  # seen through everywhere around
+    agree = int(np.count_nonzero(agree_m))
+    violate = int(np.count_nonzero(violate_m))
+    missing = int(np.count_nonzero(~any_valid))
+    occluded = len(zm) - agree - violate - missing
+    n = agree + violate + occluded
+    score = 0.0 if n < params.min_cells else (agree - params.violation_weight * violate) / n
+    return Verification(float(score), agree, violate, occluded, missing)
+
+
+def verify_shapes(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, library,
+                  params: VerifyParams = VerifyParams()) -> list[Verification]:
+    """:func:`verify_pose` of every shape of a :class:`ShapeLibrary` at one pose."""
+    return [verify_pose(evidence, R, t, library.points[s], library.spacing[s], params)
+            for s in range(len(library))]
