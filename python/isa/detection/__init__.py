@@ -41,7 +41,7 @@ import lazy_loader as _lazy
 __getattr__, __dir__, __all__ = _lazy.attach(
     __name__,
     submodules=["planes", "category_boxes", "hypotheses", "training", "real", "cli", "shapes", "verify", "refine",
-                "gravity", "multi"],
+                "gravity", "background", "multi"],
     submod_attrs={
         "planes": [
             "PlaneParams", "Plane", "find_planes", "PlaneRemoval", "remove_planes",
@@ -65,6 +65,7 @@ __getattr__, __dir__, __all__ = _lazy.attach(
         "verify": ["VerifyParams", "Verification", "DepthEvidence", "verify_pose"],
         "refine": ["RefineParams", "Refinement", "refine_pose", "upright_points"],
         "gravity": ["GravityEstimate", "estimate_gravity"],
+        "background": ["LeafForeground", "fit_leaf_foreground", "weighted_predict"],
         "multi": ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
                   "nms_across", "write_bop_csv"],
     },

@@ -108,9 +108,10 @@ def _forest(model, source: str | None = None):
     return model, source or "model"
 
 
-def detect_category(forest, depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray, box: CategoryBox | None = None,
-           params: DetectionParams = DetectionParams(), planes: PlaneRemoval | None = None,
-           category: str | None = None) -> Detections:
+def detect_category(forest, depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray,
+                    box: CategoryBox | None = None,
+                    params: DetectionParams = DetectionParams(), planes: PlaneRemoval | None = None,
+                    category: str | None = None) -> Detections:
     """Detect one category in one depth frame (steps: :mod:`isa.detection`).
 
     ``forest``: :class:`isa.forest.model.Forest` or a model path; ``depth`` (H, W) float metres; ``box``:

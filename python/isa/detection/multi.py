@@ -30,7 +30,7 @@ from isa.detection.gravity import GravityEstimate, estimate_gravity
 from isa.detection.refine import RefineParams, refine_pose, upright_points
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import DepthEvidence, VerifyParams, verify_pose
-from isa.evaluation.boxes3d import Box3D, box_from_pose, footprint_intersection_area, iou_3d
+from isa.evaluation.boxes3d import Box3D, box_from_pose, footprint_intersection_area, iou_3d, rot_z
 from isa.exceptions import DataError
 
 __all__ = ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
@@ -39,19 +39,23 @@ __all__ = ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "Det
 
 @dataclass(frozen=True, eq=False)
 class CategoryModel:
-    """A category's forest, its box (size and origin offset, :class:`isa.detection.CategoryBox`)
-    and its shape library (None: no verification, the forest's score and box are used)."""
+    """A category's forest, its box (size and origin offset, :class:`isa.detection.CategoryBox`),
+    its shape library (None: no verification, the forest's score and box are used) and its leaf
+    foreground probabilities (:mod:`isa.detection.background`; None: every vote counts fully)."""
 
     category: str
     forest: Any
     box: Any
     shapes: ShapeLibrary | None = None
+    foreground: Any = None
 
 
 def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None,
-               category: str | None = None) -> CategoryModel:
+               category: str | None = None, foreground: str | Path | None = None) -> CategoryModel:
     """A :class:`CategoryModel` from a model file; ``shapes`` a library or its ``.npz`` (default:
-    ``<model>.shapes.npz`` beside the model when it exists)."""
+    ``<model>.shapes.npz`` beside the model when it exists); ``foreground`` likewise
+    (``<model>.foreground.npz``)."""
+    from isa.detection.background import LeafForeground
     from isa.detection.category_boxes import model_box
     from isa.forest.model import Forest
 
@@ -64,7 +68,11 @@ def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None
         shapes = path.with_suffix(".shapes.npz")
     if shapes is not None and not isinstance(shapes, ShapeLibrary):
         shapes = ShapeLibrary.load(shapes)
-    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes)
+    if foreground is None and path.with_suffix(".foreground.npz").is_file():
+        foreground = path.with_suffix(".foreground.npz")
+    if foreground is not None and not isinstance(foreground, LeafForeground):
+        foreground = LeafForeground.load(foreground)
+    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes, foreground)
 
 
 @dataclass(frozen=True)
@@ -72,7 +80,9 @@ class DetectParams:
     """``stride``, ``max_hypotheses`` go to each forest's voting; ``max_tilt_deg`` rejects
     hypotheses tilted further from up; ``floor_gap`` rejects those whose bottom is further from
     the found floor (and the rest are set on it); ``verify`` / ``refine`` None switch the steps
-    off; ``refine_top`` hypotheses per category are refined; ``nms_iou`` / ``nms_overlap`` the
+    off; ``refine_top`` hypotheses per category are refined; ``turns`` > 1 also verifies each
+    hypothesis turned by multiples of 360 / ``turns`` degrees about gravity (the forest's front and
+    back are the easiest to confuse) and keeps the best; ``nms_iou`` / ``nms_overlap`` the
     cross-category suppression; ``max_detections`` per frame; ``min_score`` drops weaker ones."""
 
     stride: int = 4
@@ -83,6 +93,7 @@ class DetectParams:
     verify: VerifyParams | None = field(default_factory=VerifyParams)
     refine: RefineParams | None = field(default_factory=RefineParams)
     refine_top: int = 5
+    turns: int = 1
     nms_iou: float = 0.25
     nms_overlap: float = 0.6
     max_detections: int = 20
@@ -200,19 +211,32 @@ def _candidates(model: CategoryModel, hyps, Rg, floor, params: DetectParams) -> 
     return out
 
 
-def _score_shapes(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, up_z: np.ndarray,
-                  floor: float | None) -> None:
-    """Verify every shape at the candidate's pose (each set on the floor when there is one) and
-    keep the best: its score, index and translation."""
+def turned(R: np.ndarray, t: np.ndarray, angle: float, centre_obj: np.ndarray, Rg: np.ndarray):
+    """The pose turned by ``angle`` about the vertical through the object-frame point ``centre_obj``."""
+    Rz = Rg.T @ rot_z(angle) @ Rg  # the turn about gravity, in camera coordinates
+    c = R @ centre_obj + t
+    R2 = Rz @ R
+    return R2, c - R2 @ centre_obj
+
+
+def _score_shapes(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np.ndarray,
+                  floor: float | None, turns: int = 1) -> None:
+    """Verify every shape at the candidate's pose (each set on the floor when there is one), and
+    at the pose turned by 360 / ``turns`` degree steps about the shape's box centre, and keep the
+    best: its score, index and pose."""
     best = None
+    up_z = Rg[2]
     for s in range(len(shapes)):
-        t = cand["t"]
-        if floor is not None:
-            t = t - (float(up_z @ t) + shapes.bounds[s, 0, 2] - floor) * up_z
-        v = verify_pose(evidence, cand["R"], t, shapes.points[s], shapes.spacing[s], params)
-        if best is None or v.score > best[0].score:
-            best = (v, s, t)
-    cand.update(score=best[0].score, shape=best[1], t=best[2], verification=best[0])
+        for k in range(turns):
+            R, t = cand["R"], cand["t"]
+            if k:
+                R, t = turned(R, t, 2 * math.pi * k / turns, shapes.centres[s], Rg)
+            if floor is not None:
+                t = t - (float(up_z @ t) + shapes.bounds[s, 0, 2] - floor) * up_z
+            v = verify_pose(evidence, R, t, shapes.points[s], shapes.spacing[s], params)
+            if best is None or v.score > best[0].score:
+                best = (v, s, R, t, k)
+    cand.update(score=best[0].score, shape=best[1], R=best[2], t=best[3], verification=best[0], turn=best[4])
 
 
 def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarray | None = None,
@@ -244,7 +268,12 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     per_model = []
     for m in ms:
         kw = {"stride": params.stride, "max_hypotheses": params.max_hypotheses, **params.predict}
-        per_model.append(m.forest.predict(clean, intrinsics, **kw))
+        if m.foreground is not None:
+            from isa.detection.background import weighted_predict
+
+            per_model.append(weighted_predict(m.forest, m.foreground, clean, intrinsics, **kw))
+        else:
+            per_model.append(m.forest.predict(clean, intrinsics, **kw))
     secs["votes"] = time.perf_counter() - t0
     if grav.source == "level" and any(per_model):  # neither given nor a floor: the votes' tilt
         grav = estimate_gravity(np.zeros_like(depth), intrinsics, None, [h for hs in per_model for h in hs])
@@ -259,7 +288,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
         use_shapes = m.shapes is not None and evidence is not None
         for c in cands:
             if use_shapes:
-                _score_shapes(evidence, c, m.shapes, params.verify, Rg[2], floor)
+                _score_shapes(evidence, c, m.shapes, params.verify, Rg, floor, params.turns)
             else:
                 c.update(score=c["forest_score"], shape=None)
         if use_shapes and params.refine is not None:
@@ -270,7 +299,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
                 r = refine_pose(pts_up, intrinsics, c["R"], c["t"], m.shapes.points[s], m.shapes.bounds[s], Rg, rp,
                                 m.shapes.normals[s])
                 trial = {**c, "R": r.R, "t": r.t}
-                _score_shapes(evidence, trial, m.shapes, params.verify, Rg[2], floor)
+                _score_shapes(evidence, trial, m.shapes, params.verify, Rg, floor)
                 if trial["score"] >= c["score"]:
                     c.update(trial, refined=True, refine_rms=r.rms)
             t_refine += time.perf_counter() - t1
@@ -282,7 +311,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
             else:
                 size, centre = m.box.size, -m.box.ssc_offset
             meta = {k: c[k] for k in ("forest_score", "rank", "tilt_deg") if k in c}
-            meta.update(shape=c["shape"], refined=bool(c.get("refined", False)))
+            meta.update(shape=c["shape"], refined=bool(c.get("refined", False)), turn=c.get("turn", 0))
             dets.append(SceneDetection(m.category, c["R"], c["t"], np.array(size), np.array(centre), float(c["score"]),
                                        c["support"], meta))
     secs["refine"] = t_refine

@@ -131,7 +131,7 @@ def refine_pose(points_up: np.ndarray, intrinsics: Intrinsics, R: np.ndarray, t:
     for it, dmax in enumerate(dists):
         model_up_all = _apply(A, shape_points) + b
         model_cam = _apply(Rg.T, model_up_all)  # upright -> camera: Rg^-1 = Rg.T
-        idx, _ = visible_points(model_cam, intrinsics, params.cell_px)
+        idx, _, _ = visible_points(model_cam, intrinsics, params.cell_px)
         if len(idx) < params.min_pairs:
             break
         model_up = model_up_all[idx]

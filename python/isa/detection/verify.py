@@ -8,10 +8,13 @@ compared with the observed depth at its pixel, within the sensor tolerance ``max
 - **violate**: the observed surface is well *behind* the shape's: we see through where the
   object would be, so it is not there (free space);
 - **occluded**: the observed surface is in front (something hides the object: no evidence);
-- **missing**: no depth at that pixel (no evidence).
+- **missing**: no depth at that pixel (no evidence);
+- **outside**: the cell falls outside the image (no evidence; the z-buffer spans the image
+  and its size again around it).
 
-The score is ``(agree - violation_weight * violate) / (agree + violate + occluded)``: the share
-of the shape's visible surface that the image confirms, minus what it refutes. It is a fraction
+The score is ``(agree - violation_weight * violate) / (agree + violate + occluded + outside)``:
+the share of the shape's surface facing the camera that the image confirms, minus what it
+refutes; a hypothesis mostly hidden or out of view cannot score high on the little that shows. It is a fraction
 in ``[-violation_weight, 1]`` whatever the frame, the category or the object's distance, so
 scores of different categories and frames can be ranked together. Verification runs on the raw
 depth (floor and walls kept): a hypothesis floating in front of a wall or sinking into the floor
@@ -58,10 +61,11 @@ class Verification:
     violate: int
     occluded: int
     missing: int
+    outside: int = 0
 
     @property
     def cells(self) -> int:
-        return self.agree + self.violate + self.occluded + self.missing
+        return self.agree + self.violate + self.occluded + self.missing + self.outside
 
 
 class DepthEvidence:
@@ -96,27 +100,31 @@ def _cell_px(spacing: float, z: float, intrinsics: Intrinsics, params: VerifyPar
     return max(params.min_cell_px, int(round(params.cell_spacing * spacing * intrinsics.fx / max(z, 1e-3))))
 
 
-def visible_points(points_cam: np.ndarray, intrinsics: Intrinsics, cell_px: int) -> tuple[np.ndarray, np.ndarray]:
+def visible_points(points_cam: np.ndarray, intrinsics: Intrinsics, cell_px: int,
+                   margin: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The front-most point per ``cell_px`` image cell of camera-frame points (N, 3): their
-    indices (M,) and pixels (M, 2) int (u, v); points behind the camera or outside the image
-    are dropped."""
+    indices (M,), pixels (M, 2) int (u, v) and whether each is inside the image (M,) bool.
+    Points behind the camera are dropped, and so are those beyond ``margin`` times the image
+    size outside it (kept within it: a hypothesis mostly out of view is scored on all of it)."""
     z = points_cam[:, 2]
-    ok = z > 0.05
-    idx = np.flatnonzero(ok)
+    idx = np.flatnonzero(z > 0.05)
     zi = z[idx]
     u = np.floor(intrinsics.fx * points_cam[idx, 0] / zi + intrinsics.cx + 0.5).astype(np.int64)
     v = np.floor(intrinsics.fy * points_cam[idx, 1] / zi + intrinsics.cy + 0.5).astype(np.int64)
-    inside = (u >= 0) & (u < intrinsics.width) & (v >= 0) & (v < intrinsics.height)
-    idx, u, v, zi = idx[inside], u[inside], v[inside], zi[inside]
+    mu, mv = int(margin * intrinsics.width), int(margin * intrinsics.height)
+    keep = (u >= -mu) & (u < intrinsics.width + mu) & (v >= -mv) & (v < intrinsics.height + mv)
+    idx, u, v, zi = idx[keep], u[keep], v[keep], zi[keep]
     if len(idx) == 0:
-        return idx, np.zeros((0, 2), dtype=np.int64)
-    cols = (intrinsics.width + cell_px - 1) // cell_px
-    cell = (v // cell_px) * cols + u // cell_px
+        return idx, np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=bool)
+    cols = (intrinsics.width + 2 * mu + cell_px - 1) // cell_px
+    cell = ((v + mv) // cell_px) * cols + (u + mu) // cell_px
     order = np.lexsort((zi, cell))  # by cell, then nearest first
     first = np.ones(len(order), dtype=bool)
     first[1:] = cell[order[1:]] != cell[order[:-1]]
-    keep = order[first]
-    return idx[keep], np.column_stack([u[keep], v[keep]])
+    front = order[first]
+    uv = np.column_stack([u[front], v[front]])
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < intrinsics.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intrinsics.height)
+    return idx[front], uv, inside
 
 
 def verify_pose(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, points: np.ndarray,
@@ -127,9 +135,11 @@ def verify_pose(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, points: n
     R = np.asarray(R, dtype=float).reshape(3, 3)
     t = np.asarray(t, dtype=float).reshape(3)
     pc = np.einsum("ij,nj->ni", R, np.asarray(points, dtype=float)) + t  # einsum: see refine._apply
-    idx, uv = visible_points(pc, intrinsics, _cell_px(spacing, float(t[2]), intrinsics, params))
+    idx, uv, inside = visible_points(pc, intrinsics, _cell_px(spacing, float(t[2]), intrinsics, params), 1.0)
+    outside = int(np.count_nonzero(~inside))
+    idx, uv = idx[inside], uv[inside]
     if len(idx) == 0:
-        return Verification(0.0, 0, 0, 0, 0)
+        return Verification(0.0, 0, 0, 0, 0, outside)
     zm = pc[idx, 2]
     zo = evidence.window(uv, params.lateral, float(t[2]))  # (M, K)
     base, k = params.tolerance
@@ -144,9 +154,9 @@ def verify_pose(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, points: n
     violate = int(np.count_nonzero(violate_m))
     missing = int(np.count_nonzero(~any_valid))
     occluded = len(zm) - agree - violate - missing
-    n = agree + violate + occluded
-    score = 0.0 if n < params.min_cells else (agree - params.violation_weight * violate) / n
-    return Verification(float(score), agree, violate, occluded, missing)
+    n = agree + violate + occluded + outside
+    score = 0.0 if n - outside < params.min_cells else (agree - params.violation_weight * violate) / n
+    return Verification(float(score), agree, violate, occluded, missing, outside)
 
 
 def verify_shapes(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, library,
