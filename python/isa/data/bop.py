@@ -73,12 +73,14 @@ def read_json(path: str | Path):
         raise DataError(f"BOP file {path} is not valid JSON: {exc}") from exc
 
 
-def _write_png(path: Path, array: np.ndarray) -> None:
+def write_png(path: Path, array: np.ndarray) -> None:
+    """Write a uint8/uint16 image as PNG atomically (temporary name, then rename)."""
     # compress_level=1: PNG stays lossless; level 1 is ~2x faster than the default for depth maps.
     _atomic_write(path, lambda tmp: Image.fromarray(array).save(tmp, format="PNG", compress_level=1))
 
 
-def _read_png(path: Path) -> np.ndarray:
+def read_png(path: Path) -> np.ndarray:
+    """Read a PNG; ``DataError`` naming it when missing or corrupt."""
     if not path.is_file():
         raise DataError(f"BOP image not found: {path}")
     try:
@@ -221,8 +223,8 @@ class SceneWriter:
     def write_frame(self, im_id: int, depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics, R, t_m, obj_id: int) -> None:
         """Write one frame: depth (float metres), mask (bool), pose R (3x3) / t (metres)."""
         mask = np.asarray(mask, dtype=bool)
-        _write_png(self.depth_path(im_id), depth_to_png(depth_m, self.depth_scale))
-        _write_png(self.mask_path(im_id), mask.astype(np.uint8) * 255)
+        write_png(self.depth_path(im_id), depth_to_png(depth_m, self.depth_scale))
+        write_png(self.mask_path(im_id), mask.astype(np.uint8) * 255)
         k = str(im_id)
         n = int(mask.sum())
         bb = _bbox(mask)
@@ -290,12 +292,12 @@ def read_frame(root: str | Path, split: str, scene_id: int, im_id: int, _cache: 
         raise DataError(f"BOP scene {d}: image {im_id} is not in scene_gt.json / scene_camera.json")
     cam, gt = cams[k], gts[k][0]
     scale = float(cam.get("depth_scale", 1.0))
-    values = _read_png(d / "depth" / f"{im_id:06d}.png")
+    values = read_png(d / "depth" / f"{im_id:06d}.png")
     if "width" in cam:
         w, h = int(cam["width"]), int(cam["height"])
     else:
         h, w = values.shape
-    mask = _read_png(d / "mask" / f"{im_id:06d}_000000.png") > 0
+    mask = read_png(d / "mask" / f"{im_id:06d}_000000.png") > 0
     return BopFrame(
         scene_id=scene_id, im_id=im_id, depth=png_to_depth(values, scale), mask=mask,
         intrinsics=Intrinsics.from_K(cam["cam_K"], w, h),

@@ -1,0 +1,11 @@
+"""Scenes: cluttered rooms and real-scan views with exact 6D ground truth, in the BOP format.
+
+``cameras`` (hand-held / mounted Kinect poses), ``rooms`` (floor, walls, instances, clutter),
+``sources`` (where instance meshes come from), ``writer`` (the BOP dataset on disk), ``scan2cad``
+(the real ScanNet scan as a scene), ``io`` (reading a scene dataset back for scoring).
+"""
+
+from isa.scenes.io import GroundTruth, SceneFrame, read_scene_dataset
+from isa.scenes.writer import make_scenes
+
+__all__ = ["GroundTruth", "SceneFrame", "make_scenes", "read_scene_dataset"]
