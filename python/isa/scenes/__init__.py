@@ -9,3 +9,8 @@ from isa.scenes.io import GroundTruth, SceneFrame, read_scene_dataset
 from isa.scenes.writer import make_scenes
 
 __all__ = ["GroundTruth", "SceneFrame", "make_scenes", "read_scene_dataset"]
+
+# Scoring and the benchmark (the scoring helper's part).
+from isa.scenes.scoring import Detection, Scores, evaluate
+
+__all__ += ["Detection", "Scores", "evaluate"]
