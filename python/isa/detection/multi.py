@@ -80,7 +80,9 @@ class DetectParams:
     """``stride``, ``max_hypotheses`` go to each forest's voting; ``max_tilt_deg`` rejects
     hypotheses tilted further from up; ``floor_gap`` rejects those whose bottom is further from
     the found floor (and the rest are set on it); ``verify`` / ``refine`` None switch the steps
-    off; ``refine_top`` hypotheses per category are refined; ``turns`` > 1 also verifies each
+    off; ``size_top`` hypotheses per category get their size fitted (per-axis scale of their
+    ``size_shapes`` best shapes, factors ``size_steps``; 0: training sizes only);
+    ``refine_top`` hypotheses per category are refined; ``turns`` > 1 also verifies each
     hypothesis turned by multiples of 360 / ``turns`` degrees about gravity (the forest's front and
     back are the easiest to confuse) and keeps the best; ``nms_iou`` / ``nms_overlap`` the
     cross-category suppression; ``max_detections`` per frame; ``min_score`` drops weaker ones."""
@@ -94,6 +96,9 @@ class DetectParams:
     refine: RefineParams | None = field(default_factory=RefineParams)
     refine_top: int = 5
     turns: int = 1
+    size_top: int = 8
+    size_shapes: int = 3
+    size_steps: tuple[float, ...] = (0.8, 0.9, 1.1, 1.25)
     nms_iou: float = 0.25
     nms_overlap: float = 0.6
     max_detections: int = 20
@@ -219,24 +224,58 @@ def turned(R: np.ndarray, t: np.ndarray, angle: float, centre_obj: np.ndarray, R
     return R2, c - R2 @ centre_obj
 
 
+def _verify_scaled(evidence, R, t, shapes: ShapeLibrary, s: int, scale: np.ndarray, params: VerifyParams,
+                   Rg: np.ndarray, floor: float | None):
+    """Verify shape ``s`` scaled per axis by ``scale`` (about the object origin) at ``(R, t)``,
+    set on the floor when there is one: ``(Verification, t)``."""
+    if floor is not None:
+        t = t - (float(Rg[2] @ t) + shapes.bounds[s, 0, 2] * scale[2] - floor) * Rg[2]
+    lateral = max(params.lateral, params.lateral_fraction * float(np.linalg.norm(shapes.sizes[s] * scale)))
+    v = verify_pose(evidence, R, t, shapes.points[s] * scale, shapes.spacing[s], replace(params, lateral=lateral))
+    return v, t
+
+
 def _score_shapes(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np.ndarray,
                   floor: float | None, turns: int = 1) -> None:
-    """Verify every shape at the candidate's pose (each set on the floor when there is one), and
-    at the pose turned by 360 / ``turns`` degree steps about the shape's box centre, and keep the
-    best: its score, index and pose."""
-    best = None
-    up_z = Rg[2]
+    """Verify every shape (at its training size) at the candidate's pose, and at the pose turned
+    by 360 / ``turns`` degree steps about the shape's box centre, and keep the best: its score,
+    shape index, pose and the ranked shape indices (for :func:`_fit_size`)."""
+    best, per_shape = None, np.full(len(shapes), -np.inf)
+    one = np.ones(3)
     for s in range(len(shapes)):
         for k in range(turns):
             R, t = cand["R"], cand["t"]
             if k:
                 R, t = turned(R, t, 2 * math.pi * k / turns, shapes.centres[s], Rg)
-            if floor is not None:
-                t = t - (float(up_z @ t) + shapes.bounds[s, 0, 2] - floor) * up_z
-            v = verify_pose(evidence, R, t, shapes.points[s], shapes.spacing[s], params)
+            v, t = _verify_scaled(evidence, R, t, shapes, s, one, params, Rg, floor)
+            per_shape[s] = max(per_shape[s], v.score)
             if best is None or v.score > best[0].score:
                 best = (v, s, R, t, k)
-    cand.update(score=best[0].score, shape=best[1], R=best[2], t=best[3], verification=best[0], turn=best[4])
+    cand.update(score=best[0].score, shape=best[1], R=best[2], t=best[3], verification=best[0], turn=best[4],
+                scale=one, shape_order=np.argsort(-per_shape, kind="stable"))
+
+
+def _fit_size(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np.ndarray, floor: float | None,
+              n_shapes: int, steps: Sequence[float], rounds: int = 2) -> None:
+    """The object's size (a 9D pose): for the candidate's best ``n_shapes`` shapes, a coordinate
+    search over per-axis scale factors (each axis tries ``steps`` times its current factor,
+    ``rounds`` times), keeping the best-verifying shape and scale."""
+    best = (cand["score"], cand["shape"], cand["scale"], cand["t"], cand["verification"])
+    for s in cand["shape_order"][:n_shapes]:
+        scale = np.ones(3)
+        v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, s, scale, params, Rg, floor)
+        cur = (v.score, scale, t, v)
+        for _ in range(rounds):
+            for axis in range(3):
+                for f in steps:
+                    trial = cur[1].copy()
+                    trial[axis] *= f
+                    v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, s, trial, params, Rg, floor)
+                    if v.score > cur[0]:
+                        cur = (v.score, trial, t, v)
+        if cur[0] > best[0]:
+            best = (cur[0], int(s), cur[1], cur[2], cur[3])
+    cand.update(score=best[0], shape=best[1], scale=best[2], t=best[3], verification=best[4])
 
 
 def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarray | None = None,
@@ -291,23 +330,26 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
                 _score_shapes(evidence, c, m.shapes, params.verify, Rg, floor, params.turns)
             else:
                 c.update(score=c["forest_score"], shape=None)
+        if use_shapes and params.size_top:
+            for c in sorted(cands, key=lambda c: -c["score"])[: params.size_top]:
+                _fit_size(evidence, c, m.shapes, params.verify, Rg, floor, params.size_shapes, params.size_steps)
         if use_shapes and params.refine is not None:
             t1 = time.perf_counter()
             for c in sorted(cands, key=lambda c: -c["score"])[: params.refine_top]:
-                s = c["shape"]
+                s, sc = c["shape"], c["scale"]
                 rp = replace(params.refine, fix_height=True) if floor is not None else params.refine
-                r = refine_pose(pts_up, intrinsics, c["R"], c["t"], m.shapes.points[s], m.shapes.bounds[s], Rg, rp,
-                                m.shapes.normals[s])
-                trial = {**c, "R": r.R, "t": r.t}
-                _score_shapes(evidence, trial, m.shapes, params.verify, Rg, floor)
-                if trial["score"] >= c["score"]:
-                    c.update(trial, refined=True, refine_rms=r.rms)
+                r = refine_pose(pts_up, intrinsics, c["R"], c["t"], m.shapes.points[s] * sc, m.shapes.bounds[s] * sc,
+                                Rg, rp, m.shapes.normals[s] / sc / np.linalg.norm(m.shapes.normals[s] / sc, axis=1,
+                                                                                    keepdims=True))
+                v, t = _verify_scaled(evidence, r.R, r.t, m.shapes, s, sc, params.verify, Rg, floor)
+                if v.score >= c["score"]:
+                    c.update(R=r.R, t=t, score=v.score, verification=v, refined=True, refine_rms=r.rms)
             t_refine += time.perf_counter() - t1
         for c in cands:
             if c["score"] < params.min_score:
                 continue
             if c["shape"] is not None:
-                size, centre = m.shapes.sizes[c["shape"]], m.shapes.centres[c["shape"]]
+                size, centre = m.shapes.sizes[c["shape"]] * c["scale"], m.shapes.centres[c["shape"]] * c["scale"]
             else:
                 size, centre = m.box.size, -m.box.ssc_offset
             meta = {k: c[k] for k in ("forest_score", "rank", "tilt_deg") if k in c}

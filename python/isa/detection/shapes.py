@@ -96,3 +96,17 @@ def shape_library(category: str, meshes: Sequence, names: Sequence[str] | None =
         bounds.append(np.asarray(m.bounds, dtype=float))
     return ShapeLibrary(category, np.stack(pts), np.stack(nrm), spacing, np.stack(bounds),
                         tuple(names) if names is not None else tuple(str(i) for i in range(len(meshes))))
+
+
+def bop_shape_library(root: str | Path, category: str, split: str = "train", n_points: int = N_POINTS,
+                      seed: int = 0) -> ShapeLibrary:
+    """The shape library of the objects a BOP split shows (the training renders of
+    :func:`isa.render.dataset.render_dataset` / ``python -m isa experiment``: their
+    ``models/obj_*.ply`` are already in the category's object frame)."""
+    from isa.data import bop
+
+    ids = sorted(set(bop.FrameSequence(root, split).obj_ids))
+    if not ids:
+        raise DataError(f"{root}/{split}: no frames, so no training shapes")
+    return shape_library(category, [bop.read_model(root, k) for k in ids], names=[f"obj_{k:06d}" for k in ids],
+                         n_points=n_points, seed=seed)

@@ -42,7 +42,9 @@ class VerifyParams:
     0 (too little of it in the image to say); ``lateral`` (metres) how far sideways the observed
     surface may be from the shape's and still agree (instances of a category differ from its
     training shapes: a leg 3 cm off is still a leg), also the reach of a free-space violation:
-    only a cell whose whole ``lateral`` neighbourhood is seen through is refuted."""
+    only a cell whose whole ``lateral`` neighbourhood is seen through is refuted;
+    ``lateral_fraction``: the detector widens ``lateral`` to this fraction of the shape's
+    diagonal (a bed's parts vary by more centimetres than a chair's)."""
 
     tolerance: tuple[float, float] = (0.03, 0.0045)
     violation_weight: float = 1.0
@@ -50,6 +52,7 @@ class VerifyParams:
     min_cell_px: int = 2
     min_cells: int = 20
     lateral: float = 0.03
+    lateral_fraction: float = 0.03
 
 
 @dataclass(frozen=True)
