@@ -199,3 +199,23 @@ def test_detect_finds_the_chair_once_with_two_category_models_firing(tmp_path):
     assert len(rows) == len(res.detections) and rows[0]["obj_id"] in ("3", "5")
     np.testing.assert_allclose(np.array(rows[0]["t"].split(), float), 1000 * best.t, atol=1e-3)
     np.testing.assert_allclose(np.array(rows[0]["R"].split(), float).reshape(3, 3), best.R, atol=1e-6)
+
+
+def test_a_hypothesis_behind_a_wall_is_refuted_once_the_planes_are_known(chairs, scene):
+    from isa.detection.planes import remove_planes
+
+    depth, (R, t), Rg = scene
+    lib = shape_library("chair", chairs[:1])
+    planes = remove_planes(depth, KINECT_V1, Rg)
+    assert any(p.kind == "wall" for p in planes.planes)
+    # The chair moved behind the wall (at y = 3 m, the chair at y = 0.5): hidden by it, no evidence
+    # without the planes; with them the wall in front refutes it.
+    behind = t + Rg.T @ np.array([0.0, 3.5 - 0.5, 0.0])
+    plain = verify_pose(DepthEvidence(depth, KINECT_V1), R, behind, lib.points[0], lib.spacing[0])
+    known = verify_pose(DepthEvidence(depth, KINECT_V1, planes.removed), R, behind, lib.points[0], lib.spacing[0])
+    assert plain.violate < plain.occluded
+    assert known.score < plain.score - 0.5 and known.violate > known.occluded
+    # The true pose keeps its score: the chair's own pixels are not plane pixels.
+    true_plain = verify_pose(DepthEvidence(depth, KINECT_V1), R, t, lib.points[0], lib.spacing[0]).score
+    true_known = verify_pose(DepthEvidence(depth, KINECT_V1, planes.removed), R, t, lib.points[0], lib.spacing[0]).score
+    assert true_known > true_plain - 0.05

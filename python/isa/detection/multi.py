@@ -255,11 +255,25 @@ def _score_shapes(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg
                 scale=one, shape_order=np.argsort(-per_shape, kind="stable"))
 
 
+def _size_ok(category: str, size: np.ndarray, margin: float = 0.15) -> bool:
+    """Whether extents (x, y, z) fit the category's real-world sizes (:data:`isa.categories.SIZES`,
+    widened by ``margin``): height in its range, the longer horizontal side in the length range."""
+    from isa.categories import SIZES
+
+    r = SIZES.get(category)
+    if r is None:
+        return True
+    h, length = float(size[2]), float(max(size[0], size[1]))
+    return ((1 - margin) * r.height[0] <= h <= (1 + margin) * r.height[1]
+            and (1 - margin) * r.length[0] <= length <= (1 + margin) * r.length[1])
+
+
 def _fit_size(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np.ndarray, floor: float | None,
-              n_shapes: int, steps: Sequence[float], rounds: int = 2) -> None:
+              n_shapes: int, steps: Sequence[float], rounds: int = 2, category: str = "") -> None:
     """The object's size (a 9D pose): for the candidate's best ``n_shapes`` shapes, a coordinate
     search over per-axis scale factors (each axis tries ``steps`` times its current factor,
-    ``rounds`` times), keeping the best-verifying shape and scale."""
+    ``rounds`` times; sizes outside the category's real-world range are not tried), keeping the
+    best-verifying shape and scale."""
     best = (cand["score"], cand["shape"], cand["scale"], cand["t"], cand["verification"])
     for s in cand["shape_order"][:n_shapes]:
         scale = np.ones(3)
@@ -270,6 +284,8 @@ def _fit_size(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np
                 for f in steps:
                     trial = cur[1].copy()
                     trial[axis] *= f
+                    if not _size_ok(category, shapes.sizes[s] * trial):
+                        continue
                     v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, s, trial, params, Rg, floor)
                     if v.score > cur[0]:
                         cur = (v.score, trial, t, v)
@@ -318,7 +334,8 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
         grav = estimate_gravity(np.zeros_like(depth), intrinsics, None, [h for hs in per_model for h in hs])
         Rg = grav.R
     t0 = time.perf_counter()
-    evidence = DepthEvidence(depth, intrinsics) if params.verify is not None else None
+    evidence = (DepthEvidence(depth, intrinsics, planes.removed if planes is not None else None)
+                if params.verify is not None else None)
     pts_up = upright_points(depth, intrinsics, Rg, floor_height=floor) if params.refine is not None else None
     dets: list[SceneDetection] = []
     t_refine = 0.0
@@ -332,7 +349,8 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
                 c.update(score=c["forest_score"], shape=None)
         if use_shapes and params.size_top:
             for c in sorted(cands, key=lambda c: -c["score"])[: params.size_top]:
-                _fit_size(evidence, c, m.shapes, params.verify, Rg, floor, params.size_shapes, params.size_steps)
+                _fit_size(evidence, c, m.shapes, params.verify, Rg, floor, params.size_shapes, params.size_steps,
+                          category=m.category)
         if use_shapes and params.refine is not None:
             t1 = time.perf_counter()
             for c in sorted(cands, key=lambda c: -c["score"])[: params.refine_top]:

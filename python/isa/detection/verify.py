@@ -6,8 +6,10 @@ compared with the observed depth at its pixel, within the sensor tolerance ``max
 
 - **agree**: the observed surface is where the shape's is;
 - **violate**: the observed surface is well *behind* the shape's: we see through where the
-  object would be, so it is not there (free space);
-- **occluded**: the observed surface is in front (something hides the object: no evidence);
+  object would be, so it is not there (free space); or it is a wall or the floor in front of
+  it (nothing stands behind a wall or under the floor), when the planes are known;
+- **occluded**: the observed surface (not a plane) is in front: something hides the object, no
+  evidence; a shape surface lying on a plane counts here too;
 - **missing**: no depth at that pixel (no evidence);
 - **outside**: the cell falls outside the image (no evidence; the z-buffer spans the image
   and its size again around it).
@@ -74,19 +76,27 @@ class Verification:
 class DepthEvidence:
     """A depth frame prepared for verification: each shape cell is compared with the observed
     depth on a 5 x 5 grid of pixels spanning ``lateral`` metres around its pixel (computed once
-    per frame, shared by every hypothesis and category)."""
+    per frame, shared by every hypothesis and category). ``planes`` (H, W) bool marks floor and
+    wall pixels (:func:`isa.detection.planes.remove_planes`' ``removed``): no object stands behind
+    a wall or under the floor, so a plane in front of a shape cell refutes it, and a shape surface
+    lying on a plane is no evidence for the object."""
 
     GRID = 5
 
-    def __init__(self, depth: np.ndarray, intrinsics: Intrinsics):
+    def __init__(self, depth: np.ndarray, intrinsics: Intrinsics, planes: np.ndarray | None = None):
         self.depth = np.ascontiguousarray(depth, dtype=np.float32)
         self.intrinsics = intrinsics
+        if planes is not None and np.shape(planes) != self.depth.shape:
+            raise ValueError(f"DepthEvidence: planes mask {np.shape(planes)} does not match the depth "
+                             f"{self.depth.shape}")
+        self.planes = None if planes is None else np.asarray(planes, dtype=bool)
         g = np.arange(self.GRID) - self.GRID // 2
         self._offsets = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)  # (K, 2) unit steps
 
-    def window(self, uv: np.ndarray, lateral: float, z: float) -> np.ndarray:
+    def window(self, uv: np.ndarray, lateral: float, z: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Observed depth (M, K) on the grid around each pixel (M, 2) reaching ``lateral`` metres
-        at depth ``z`` (0 where missing or outside the image)."""
+        at depth ``z`` (0 where missing or outside the image), and whether each sample is a plane
+        pixel (None without a planes mask)."""
         half = lateral * self.intrinsics.fx / max(z, 1e-3)
         step = half / (self.GRID // 2) if self.GRID > 1 else 0.0
         off = np.round(self._offsets * step).astype(np.int64)
@@ -94,9 +104,10 @@ class DepthEvidence:
         v = uv[:, 1:] + off[None, :, 1]
         h, w = self.depth.shape
         inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        out = self.depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].astype(float)
+        vv, uu = np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)
+        out = self.depth[vv, uu].astype(float)
         out[~inside] = 0.0
-        return out
+        return out, (None if self.planes is None else self.planes[vv, uu])
 
 
 def _cell_px(spacing: float, z: float, intrinsics: Intrinsics, params: VerifyParams) -> int:
@@ -144,15 +155,21 @@ def verify_pose(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, points: n
     if len(idx) == 0:
         return Verification(0.0, 0, 0, 0, 0, outside)
     zm = pc[idx, 2]
-    zo = evidence.window(uv, params.lateral, float(t[2]))  # (M, K)
+    zo, plane = evidence.window(uv, params.lateral, float(t[2]))  # (M, K)
     base, k = params.tolerance
     tol = np.maximum(base, k * zm * zm)[:, None]
     valid = zo > 0
     d = zo - zm[:, None]
-    agree_m = (valid & (np.abs(d) < tol)).any(1)  # a surface where the shape's is, nearby
+    near = np.abs(d) < tol
+    thing = valid if plane is None else valid & ~plane
+    agree_m = (thing & near).any(1)  # an object surface where the shape's is, nearby
     any_valid = valid.any(1)
-    behind = (valid & (d >= tol)).sum(1)
-    violate_m = ~agree_m & any_valid & (behind == valid.sum(1))  # seen through everywhere around
+    # No evidence either way: something (not a plane) in front hides the cell, or the shape
+    # touches a plane there; anything else around is seen through (or is a wall in front).
+    hidden = (thing & (d <= -tol)).any(1)
+    if plane is not None:
+        hidden |= (valid & plane & near).any(1)
+    violate_m = ~agree_m & any_valid & ~hidden
     agree = int(np.count_nonzero(agree_m))
     violate = int(np.count_nonzero(violate_m))
     missing = int(np.count_nonzero(~any_valid))
