@@ -115,8 +115,8 @@ def main(argv: list[str] | None = None) -> None:
     for v in a.variants:
         dets, secs = run_variant(v, frames, models)
         sc = evaluate([f.gt for f in frames], dets, [f.gravity for f in frames], cats)
-        row = {c: {m: (None if sc.metrics[c][m] is None else _pct(sc.metrics[c][m].ap)) for m in ("box_0.25", "6d_sym", "6d")}
-               for c in cats}
+        row = {c: {m: (None if sc.metrics[c][m] is None else _pct(sc.metrics[c][m].ap))
+                   for m in ("box_0.25", "6d_sym", "6d")} for c in cats}
         results[v] = {"ap": row, "ms_per_frame": 1000 * float(np.mean(secs)), "frames": len(frames)}
         cells = " | ".join(f"{c} {row[c]['box_0.25']} / {row[c]['6d_sym']} / {row[c]['6d']}" for c in cats)
         print(f"| {v} | {cells} | {results[v]['ms_per_frame']:.0f} ms |", flush=True)

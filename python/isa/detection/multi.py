@@ -81,7 +81,8 @@ class DetectParams:
     hypotheses tilted further from up; ``floor_gap`` rejects those whose bottom is further from
     the found floor (and the rest are set on it); ``verify`` / ``refine`` None switch the steps
     off; ``size_top`` hypotheses per category get their size fitted (per-axis scale of their
-    ``size_shapes`` best shapes, factors ``size_steps``; 0: training sizes only);
+    ``size_shapes`` best shapes, factors ``size_steps``; 0: training sizes only); the shapes are
+    screened and sized on their first ``quick_points`` samples (None: all), the final score uses all;
     ``refine_top`` hypotheses per category are refined; ``turns`` > 1 also verifies each
     hypothesis turned by multiples of 360 / ``turns`` degrees about gravity (the forest's front and
     back are the easiest to confuse) and keeps the best; ``nms_iou`` / ``nms_overlap`` the
@@ -98,7 +99,8 @@ class DetectParams:
     turns: int = 1
     size_top: int = 8
     size_shapes: int = 3
-    size_steps: tuple[float, ...] = (0.8, 0.9, 1.1, 1.25)
+    size_steps: tuple[float, ...] = (0.85, 1.15)
+    quick_points: int | None = 1000
     nms_iou: float = 0.25
     nms_overlap: float = 0.6
     max_detections: int = 20
@@ -225,18 +227,19 @@ def turned(R: np.ndarray, t: np.ndarray, angle: float, centre_obj: np.ndarray, R
 
 
 def _verify_scaled(evidence, R, t, shapes: ShapeLibrary, s: int, scale: np.ndarray, params: VerifyParams,
-                   Rg: np.ndarray, floor: float | None):
+                   Rg: np.ndarray, floor: float | None, n_points: int | None = None):
     """Verify shape ``s`` scaled per axis by ``scale`` (about the object origin) at ``(R, t)``,
     set on the floor when there is one: ``(Verification, t)``."""
     if floor is not None:
         t = t - (float(Rg[2] @ t) + shapes.bounds[s, 0, 2] * scale[2] - floor) * Rg[2]
     lateral = max(params.lateral, params.lateral_fraction * float(np.linalg.norm(shapes.sizes[s] * scale)))
-    v = verify_pose(evidence, R, t, shapes.points[s] * scale, shapes.spacing[s], replace(params, lateral=lateral))
+    v = verify_pose(evidence, R, t, shapes.points[s] * scale, shapes.spacing[s], replace(params, lateral=lateral),
+                    n_points)
     return v, t
 
 
 def _score_shapes(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np.ndarray,
-                  floor: float | None, turns: int = 1) -> None:
+                  floor: float | None, turns: int = 1, n_points: int | None = None) -> None:
     """Verify every shape (at its training size) at the candidate's pose, and at the pose turned
     by 360 / ``turns`` degree steps about the shape's box centre, and keep the best: its score,
     shape index, pose and the ranked shape indices (for :func:`_fit_size`)."""
@@ -247,7 +250,7 @@ def _score_shapes(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg
             R, t = cand["R"], cand["t"]
             if k:
                 R, t = turned(R, t, 2 * math.pi * k / turns, shapes.centres[s], Rg)
-            v, t = _verify_scaled(evidence, R, t, shapes, s, one, params, Rg, floor)
+            v, t = _verify_scaled(evidence, R, t, shapes, s, one, params, Rg, floor, n_points)
             per_shape[s] = max(per_shape[s], v.score)
             if best is None or v.score > best[0].score:
                 best = (v, s, R, t, k)
@@ -269,15 +272,16 @@ def _size_ok(category: str, size: np.ndarray, margin: float = 0.15) -> bool:
 
 
 def _fit_size(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np.ndarray, floor: float | None,
-              n_shapes: int, steps: Sequence[float], rounds: int = 2, category: str = "") -> None:
+              n_shapes: int, steps: Sequence[float], rounds: int = 2, category: str = "",
+              n_points: int | None = None) -> None:
     """The object's size (a 9D pose): for the candidate's best ``n_shapes`` shapes, a coordinate
     search over per-axis scale factors (each axis tries ``steps`` times its current factor,
     ``rounds`` times; sizes outside the category's real-world range are not tried), keeping the
     best-verifying shape and scale."""
-    best = (cand["score"], cand["shape"], cand["scale"], cand["t"], cand["verification"])
+    best = None
     for s in cand["shape_order"][:n_shapes]:
         scale = np.ones(3)
-        v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, s, scale, params, Rg, floor)
+        v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, s, scale, params, Rg, floor, n_points)
         cur = (v.score, scale, t, v)
         for _ in range(rounds):
             for axis in range(3):
@@ -286,12 +290,14 @@ def _fit_size(evidence, cand, shapes: ShapeLibrary, params: VerifyParams, Rg: np
                     trial[axis] *= f
                     if not _size_ok(category, shapes.sizes[s] * trial):
                         continue
-                    v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, s, trial, params, Rg, floor)
+                    v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, s, trial, params, Rg, floor, n_points)
                     if v.score > cur[0]:
                         cur = (v.score, trial, t, v)
-        if cur[0] > best[0]:
+        if best is None or cur[0] > best[0]:
             best = (cur[0], int(s), cur[1], cur[2], cur[3])
-    cand.update(score=best[0], shape=best[1], scale=best[2], t=best[3], verification=best[4])
+    # The final score from every point of the chosen shape and size.
+    v, t = _verify_scaled(evidence, cand["R"], cand["t"], shapes, best[1], best[2], params, Rg, floor)
+    cand.update(score=v.score, shape=best[1], scale=best[2], t=t, verification=v)
 
 
 def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarray | None = None,
@@ -344,13 +350,13 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
         use_shapes = m.shapes is not None and evidence is not None
         for c in cands:
             if use_shapes:
-                _score_shapes(evidence, c, m.shapes, params.verify, Rg, floor, params.turns)
+                _score_shapes(evidence, c, m.shapes, params.verify, Rg, floor, params.turns, params.quick_points)
             else:
                 c.update(score=c["forest_score"], shape=None)
         if use_shapes and params.size_top:
             for c in sorted(cands, key=lambda c: -c["score"])[: params.size_top]:
                 _fit_size(evidence, c, m.shapes, params.verify, Rg, floor, params.size_shapes, params.size_steps,
-                          category=m.category)
+                          category=m.category, n_points=params.quick_points)
         if use_shapes and params.refine is not None:
             t1 = time.perf_counter()
             for c in sorted(cands, key=lambda c: -c["score"])[: params.refine_top]:

@@ -25,6 +25,7 @@ is refuted by exactly those pixels.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,7 +133,8 @@ def visible_points(points_cam: np.ndarray, intrinsics: Intrinsics, cell_px: int,
         return idx, np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=bool)
     cols = (intrinsics.width + 2 * mu + cell_px - 1) // cell_px
     cell = ((v + mv) // cell_px) * cols + (u + mu) // cell_px
-    order = np.lexsort((zi, cell))  # by cell, then nearest first
+    # By cell, then nearest first: one sort of cell + z / (z_max + 1), as a lexsort would order.
+    order = np.argsort(cell + zi / (float(zi.max()) + 1.0), kind="stable")
     first = np.ones(len(order), dtype=bool)
     first[1:] = cell[order[1:]] != cell[order[:-1]]
     front = order[first]
@@ -142,13 +144,19 @@ def visible_points(points_cam: np.ndarray, intrinsics: Intrinsics, cell_px: int,
 
 
 def verify_pose(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, points: np.ndarray,
-                spacing: float, params: VerifyParams = VerifyParams()) -> Verification:
+                spacing: float, params: VerifyParams = VerifyParams(), n_points: int | None = None) -> Verification:
     """Verify one shape (object-frame ``points`` (N, 3), mean ``spacing``) at pose ``(R, t)``
-    against a frame's :class:`DepthEvidence`."""
+    against a frame's :class:`DepthEvidence`. ``n_points``: use only the first that many points
+    (the samples are random, so any prefix is an even subsample; the cells grow to match), for a
+    quick first look."""
     intrinsics = evidence.intrinsics
     R = np.asarray(R, dtype=float).reshape(3, 3)
     t = np.asarray(t, dtype=float).reshape(3)
-    pc = np.einsum("ij,nj->ni", R, np.asarray(points, dtype=float)) + t  # einsum: see refine._apply
+    points = np.asarray(points, dtype=float)
+    if n_points is not None and n_points < len(points):
+        spacing = spacing * math.sqrt(len(points) / n_points)
+        points = points[:n_points]
+    pc = np.einsum("ij,nj->ni", R, points) + t  # einsum: see refine._apply
     idx, uv, inside = visible_points(pc, intrinsics, _cell_px(spacing, float(t[2]), intrinsics, params), 1.0)
     outside = int(np.count_nonzero(~inside))
     idx, uv = idx[inside], uv[inside]
