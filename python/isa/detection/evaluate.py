@@ -57,21 +57,21 @@ def variant_params(name: str):
     raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN for any N)")
 
 
-def run_variant(name: str, frames, models, progress: bool = True) -> tuple[list[list], list[float]]:
-    """Detections (as :class:`isa.scenes.scoring.Detection`) of every frame and the seconds per frame."""
+def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:
+    """Detections (as :class:`isa.scenes.scoring.Detection`) of every view
+    (:class:`isa.scenes.benchmark.View`) and the seconds per view."""
     from isa.detection.multi import detect
-    from isa.scenes.benchmark import View, detect_views
+    from isa.scenes.benchmark import detect_views
     from isa.scenes.scoring import Detection
 
     if name == "baseline":
-        views = [View(f"{f.scene_id}/{f.im_id}", f.depth, f.intrinsics, f.gravity, tuple(f.gt)) for f in frames]
         return detect_views({m.category: m.forest for m in models}, views, progress=progress, desc=name)
     params = variant_params(name)
     use = models if name == "foreground" else [replace(m, foreground=None) for m in models]
     if name == "forest":
         use = [replace(m, shapes=None) for m in use]
     out, secs = [], []
-    for f in tqdm(frames, desc=name, unit="frame", disable=not progress):
+    for f in tqdm(views, desc=name, unit="frame", disable=not progress):
         t0 = time.perf_counter()
         res = detect(f.depth, f.intrinsics, use, gravity=None if name == "nogravity" else f.gravity, params=params)
         secs.append(time.perf_counter() - t0)
@@ -85,11 +85,12 @@ def _pct(v) -> float | None:
 
 def main(argv: list[str] | None = None) -> None:
     from isa.detection.multi import load_model
-    from isa.scenes.io import read_scene_dataset
+    from isa.scenes.benchmark import scene_views, sun_views
     from isa.scenes.scoring import evaluate
 
     p = argparse.ArgumentParser(prog="python -m isa.detection.evaluate", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", required=True, help="scene benchmark root (BOP)")
+    p.add_argument("--scenes", help="scene benchmark root (BOP)")
+    p.add_argument("--sun", help="SUN RGB-D folder instead (boxes only: the 6D columns are n/a)")
     p.add_argument("--split", default="val")
     p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
     p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz")
@@ -109,9 +110,12 @@ def main(argv: list[str] | None = None) -> None:
         fg = a.foreground / f"{cat}.foreground.npz" if a.foreground else None
         models.append(load_model(path, shapes=shapes, category=cat, foreground=fg))
     cats = [m.category for m in models]
-    frames = read_scene_dataset(a.scenes, a.split)[: a.limit]
+    if bool(a.scenes) == bool(a.sun):
+        raise SystemExit("give one of --scenes ROOT or --sun DIR")
+    frames = scene_views(a.scenes, a.split, a.limit) if a.scenes else sun_views(a.sun)[: a.limit]
     results = {}
-    print(f"{len(frames)} frames of {a.scenes}/{a.split}; AP (%) box IoU 0.25 / 6D sym / 6D Eq. 14, ms per frame")
+    where = f"{a.scenes}/{a.split}" if a.scenes else a.sun
+    print(f"{len(frames)} frames of {where}; AP (%) box IoU 0.25 / 6D sym / 6D Eq. 14, ms per frame")
     for v in a.variants:
         dets, secs = run_variant(v, frames, models)
         sc = evaluate([f.gt for f in frames], dets, [f.gravity for f in frames], cats)
@@ -121,8 +125,8 @@ def main(argv: list[str] | None = None) -> None:
         cells = " | ".join(f"{c} {row[c]['box_0.25']} / {row[c]['6d_sym']} / {row[c]['6d']}" for c in cats)
         print(f"| {v} | {cells} | {results[v]['ms_per_frame']:.0f} ms |", flush=True)
     if a.json:
-        a.json.write_text(json.dumps({"scenes": a.scenes, "split": a.split, "models": a.model, "results": results},
-                                     indent=1))
+        doc = {"scenes": a.scenes or a.sun, "split": a.split, "models": a.model, "results": results}
+        a.json.write_text(json.dumps(doc, indent=1))
 
 
 if __name__ == "__main__":

@@ -32,14 +32,14 @@ class RefineParams:
     the pose is left as it is; ``max_points`` observed points used at most (evenly
     subsampled); ``cell_px`` the z-buffer cell for the shape's visible surface."""
 
-    iterations: int = 12
+    iterations: int = 8
     max_distance: float = 0.15
     min_distance: float = 0.03
     margin: float = 0.15
     max_yaw_deg: float = 30.0
     max_shift: float = 0.3
     min_pairs: int = 30
-    max_points: int = 1500
+    max_points: int = 800
     cell_px: int = 2
     fix_height: bool = False
 
