@@ -15,7 +15,8 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
 - ``refine``: + upright ICP of the best hypotheses (the default pipeline);
 - ``turnsN``: ``refine`` also verifying each hypothesis turned by 360/N degree steps;
 - ``foreground``: ``refine`` with the votes weighted by the leaf foreground probabilities;
-- ``nogravity``: ``refine`` without the scene's gravity (floor normal, else the votes' tilt).
+- ``nogravity``: ``refine`` without the scene's gravity (floor normal, else the votes' tilt);
+- ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one.
 
 ``--shapes DIR`` holds ``<category>.shapes.npz`` (:func:`isa.detection.shapes.bop_shape_library`
 writes them from the training renders), ``--foreground DIR`` ``<category>.foreground.npz``.
@@ -54,7 +55,9 @@ def variant_params(name: str):
         return DetectParams(turns=int(name[5:]))
     if name in ("refine", "foreground", "nogravity"):
         return DetectParams()
-    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN for any N)")
+    if name.startswith("fw"):
+        return DetectParams(forest_weight=float(name[2:]))
+    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, fwW for any N, W)")
 
 
 def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:

@@ -83,6 +83,7 @@ class DetectParams:
     off; ``size_top`` hypotheses per category get their size fitted (per-axis scale of their
     ``size_shapes`` best shapes, factors ``size_steps``; 0: training sizes only); the shapes are
     screened and sized on their first ``quick_points`` samples (None: all), the final score uses all;
+    ``forest_weight`` adds that times the log of the forest's score to a verified score;
     ``refine_top`` hypotheses per category are refined; ``turns`` > 1 also verifies each
     hypothesis turned by multiples of 360 / ``turns`` degrees about gravity (the forest's front and
     back are the easiest to confuse) and keeps the best; ``nms_iou`` / ``nms_overlap`` the
@@ -101,6 +102,7 @@ class DetectParams:
     size_shapes: int = 3
     size_steps: tuple[float, ...] = (0.85, 1.15)
     quick_points: int | None = 1000
+    forest_weight: float = 0.0
     nms_iou: float = 0.25
     nms_overlap: float = 0.6
     max_detections: int = 20
@@ -370,6 +372,8 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
                     c.update(R=r.R, t=t, score=v.score, verification=v, refined=True, refine_rms=r.rms)
             t_refine += time.perf_counter() - t1
         for c in cands:
+            if use_shapes and params.forest_weight:
+                c["score"] += params.forest_weight * math.log(max(c["forest_score"], 1e-6))
             if c["score"] < params.min_score:
                 continue
             if c["shape"] is not None:
