@@ -112,13 +112,24 @@ def test_refinement_refuses_to_wander_off(chairs, scene):
     assert not r.converged
 
 
+def replace_score(b, score):
+    return b.replace(score=score)
+
+
 def test_nms_across_categories_keeps_one_box_per_object():
     chair = Box3D("chair", (1.0, 2.0, 0.45), (0.55, 0.55, 0.9), 0.3, score=0.8)
     toilet = Box3D("toilet", (1.02, 2.01, 0.38), (0.45, 0.65, 0.75), 0.35, score=0.6)  # same object, smaller box
     bed = Box3D("bed", (1.3, 2.3, 0.35), (2.0, 1.5, 0.7), 0.3, score=0.7)  # holds the chair's box
     other = Box3D("chair", (3.0, 2.0, 0.45), (0.55, 0.55, 0.9), 0.0, score=0.5)  # another object
     keep = nms_across([toilet, chair, bed, other])
-    assert keep == [1, 3]
+    # The toilet box (inside the better chair box) goes; the bed box, larger, is not dropped for
+    # the chair inside it (a false chair on a bed must not remove the bed), the far chair stays.
+    assert keep == [1, 2, 3]
+    # A better bed holding the chair box removes it (and the toilet): one object there.
+    assert nms_across([toilet, chair, replace_score(bed, 0.9), other]) == [2, 3]
+    # A chair box much like a better toilet box (IoU over 0.25) goes whatever its size.
+    twin = Box3D("chair", (1.0, 2.0, 0.40), (0.5, 0.6, 0.8), 0.33, score=0.5)
+    assert nms_across([toilet, twin]) == [0]
     # Per category (the old rule) both survive: the cross-category rule is what removes the toilet.
     assert nms_across([toilet, chair], overlap=1.0, iou=1.0) == [1, 0]
 

@@ -11,8 +11,8 @@
 5. **Refinement** (:mod:`isa.detection.refine`) of the best hypotheses: upright ICP with the best shape,
    then verified again; kept when the score does not drop.
 6. **NMS across categories**: one ranked list; a box overlapping a better one (3D IoU over
-   ``nms_iou`` or over ``nms_overlap`` of the smaller box's volume) is dropped, whatever its
-   category, since a place holds one object.
+   ``nms_iou``, or a smaller box with over ``nms_overlap`` of its volume inside the better one)
+   is dropped, whatever its category, since a place holds one object.
 """
 
 from __future__ import annotations
@@ -149,7 +149,7 @@ class DetectResult:
 
 
 def _overlap(a: Box3D, b: Box3D) -> tuple[float, float]:
-    """3D IoU and intersection over the smaller volume."""
+    """3D IoU of two boxes and their intersection over ``a``'s volume."""
     za0, za1 = a.z_range
     zb0, zb1 = b.z_range
     dz = min(za1, zb1) - max(za0, zb0)
@@ -158,17 +158,25 @@ def _overlap(a: Box3D, b: Box3D) -> tuple[float, float]:
     inter = footprint_intersection_area(a, b) * dz
     if inter <= 0:
         return 0.0, 0.0
-    return iou_3d(a, b), inter / min(a.volume, b.volume)
+    return iou_3d(a, b), inter / a.volume
 
 
 def nms_across(boxes: Sequence[Box3D], iou: float = 0.25, overlap: float = 0.6) -> list[int]:
     """Greedy NMS over boxes of any category, best score first: a box is dropped when its IoU
-    with a kept one exceeds ``iou`` or their intersection exceeds ``overlap`` of the smaller
-    one's volume (a chair box inside a bed's). Returns the kept indices, best first."""
+    with a kept one exceeds ``iou``, or when it is the smaller and more than ``overlap`` of its
+    volume lies inside a kept one (a toilet box inside a chair's: part of the same object). A
+    larger box is not dropped for a smaller one inside it (a false chair on a bed must not remove
+    the bed). Returns the kept indices, best first."""
     order = sorted(range(len(boxes)), key=lambda i: -boxes[i].score)
     kept: list[int] = []
     for i in order:
-        if all((lambda o: o[0] <= iou and o[1] <= overlap)(_overlap(boxes[i], boxes[k])) for k in kept):
+        ok = True
+        for k in kept:
+            o_iou, inside = _overlap(boxes[i], boxes[k])
+            if o_iou > iou or (boxes[i].volume <= boxes[k].volume and inside > overlap):
+                ok = False
+                break
+        if ok:
             kept.append(i)
     return kept
 
