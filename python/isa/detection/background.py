@@ -20,6 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from isa.camera import Intrinsics
+from isa.detection.shapes import load_npz, save_npz
 from isa.exceptions import DataError
 
 __all__ = ["LeafForeground", "fit_leaf_foreground", "depth_mm", "weighted_predict"]
@@ -42,22 +43,12 @@ class LeafForeground:
         return self.probs[np.arange(T)[None, :], leaves]
 
     def save(self, path: str | Path) -> None:
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, category=self.category, probs=self.probs, n_positive=self.n_positive,
-                            n_negative=self.n_negative)
-        tmp.replace(path)
+        save_npz(path, category=self.category, probs=self.probs, n_positive=self.n_positive, n_negative=self.n_negative)
 
     @classmethod
     def load(cls, path: str | Path) -> "LeafForeground":
-        path = Path(path)
-        if not path.is_file():
-            raise DataError(f"{path}: leaf foreground file not found")
-        try:
-            with np.load(path) as z:
-                return cls(str(z["category"]), z["probs"], int(z["n_positive"]), int(z["n_negative"]))
-        except (KeyError, ValueError, OSError) as exc:
-            raise DataError(f"{path}: not a leaf foreground file ({exc})") from None
+        z = load_npz(path, "leaf foreground file", ("category", "probs", "n_positive", "n_negative"))
+        return cls(str(z["category"]), z["probs"], int(z["n_positive"]), int(z["n_negative"]))
 
 
 def depth_mm(depth: np.ndarray) -> np.ndarray:

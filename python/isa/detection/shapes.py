@@ -59,23 +59,34 @@ class ShapeLibrary:
         return self.bounds.mean(1)
 
     def save(self, path: str | Path) -> None:
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, category=self.category, points=self.points, normals=self.normals, spacing=self.spacing,
-                            bounds=self.bounds, names=np.array(self.names, dtype=str))
-        tmp.replace(path)
+        save_npz(path, category=self.category, points=self.points, normals=self.normals, spacing=self.spacing,
+                 bounds=self.bounds, names=np.array(self.names, dtype=str))
 
     @classmethod
     def load(cls, path: str | Path) -> "ShapeLibrary":
-        path = Path(path)
-        if not path.is_file():
-            raise DataError(f"{path}: shape library not found")
-        try:
-            with np.load(path) as z:
-                return cls(str(z["category"]), z["points"], z["normals"], z["spacing"], z["bounds"],
-                           tuple(z["names"].tolist()))
-        except (KeyError, ValueError, OSError) as exc:
-            raise DataError(f"{path}: not a shape library ({exc})") from None
+        z = load_npz(path, "shape library", ("category", "points", "normals", "spacing", "bounds", "names"))
+        return cls(str(z["category"]), z["points"], z["normals"], z["spacing"], z["bounds"], tuple(z["names"].tolist()))
+
+
+def save_npz(path: str | Path, **arrays) -> None:
+    """``np.savez_compressed`` written atomically (temporary file + rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(path)
+
+
+def load_npz(path: str | Path, what: str, keys: Sequence[str]) -> dict:
+    """The arrays ``keys`` of an ``.npz`` file; :class:`DataError` naming the file and ``what`` it
+    should be when it is missing, unreadable or lacks a key."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: {what} not found")
+    try:
+        with np.load(path) as z:
+            return {k: z[k] for k in keys}
+    except (KeyError, ValueError, OSError) as exc:
+        raise DataError(f"{path}: not a {what} ({exc})") from None
 
 
 def shape_library(category: str, meshes: Sequence, names: Sequence[str] | None = None, n_points: int = N_POINTS,
