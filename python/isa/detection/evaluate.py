@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     from isa.scenes.scoring import evaluate
 
     p = argparse.ArgumentParser(prog="python -m isa.detection.evaluate", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", help="scene benchmark root (BOP)")
+    p.add_argument("--scenes", action="append", default=[], help="scene benchmark root (BOP; repeatable: pooled)")
     p.add_argument("--sun", help="SUN RGB-D folder instead (boxes only: the 6D columns are n/a)")
     p.add_argument("--split", default="val")
     p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
@@ -115,9 +115,10 @@ def main(argv: list[str] | None = None) -> None:
     cats = [m.category for m in models]
     if bool(a.scenes) == bool(a.sun):
         raise SystemExit("give one of --scenes ROOT or --sun DIR")
-    frames = scene_views(a.scenes, a.split, a.limit) if a.scenes else sun_views(a.sun)[: a.limit]
+    frames = ([v for root in a.scenes for v in scene_views(root, a.split, a.limit)] if a.scenes
+              else sun_views(a.sun)[: a.limit])
     results = {}
-    where = f"{a.scenes}/{a.split}" if a.scenes else a.sun
+    where = " + ".join(f"{r}/{a.split}" for r in a.scenes) if a.scenes else a.sun
     print(f"{len(frames)} frames of {where}; AP (%) box IoU 0.25 / 6D sym / 6D Eq. 14, ms per frame")
     for v in a.variants:
         dets, secs = run_variant(v, frames, models)
