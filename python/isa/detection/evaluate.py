@@ -12,11 +12,13 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
 - ``forest``: :func:`isa.detection.multi.detect` with the forests' scores and boxes (no shapes),
   one list and NMS across categories;
 - ``verify``: + verification against the training shapes (score, shape, size);
-- ``refine``: + upright ICP of the best hypotheses (the default pipeline);
+- ``refine``: + upright ICP of the best hypotheses, + 0.05 x the log of the forest's score (the
+  default pipeline);
 - ``turnsN``: ``refine`` also verifying each hypothesis turned by 360/N degree steps;
 - ``foreground``: ``refine`` with the votes weighted by the leaf foreground probabilities;
 - ``nogravity``: ``refine`` without the scene's gravity (floor normal, else the votes' tilt);
-- ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one.
+- ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one
+  (``fw0``: none).
 
 ``--shapes DIR`` holds ``<category>.shapes.npz`` (:func:`isa.detection.shapes.bop_shape_library`
 writes them from the training renders), ``--foreground DIR`` ``<category>.foreground.npz``.

@@ -102,7 +102,7 @@ class DetectParams:
     size_shapes: int = 3
     size_steps: tuple[float, ...] = (0.85, 1.15)
     quick_points: int | None = 1000
-    forest_weight: float = 0.0
+    forest_weight: float = 0.05
     nms_iou: float = 0.25
     nms_overlap: float = 0.6
     max_detections: int = 20
