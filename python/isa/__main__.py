@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("isa.demo", "the whole pipeline on procedural furniture, in minutes (report + results.json)"),
     "experiment": ("isa.experiment", "the paper's synthetic experiment (Table 2, left)"),
     "detect-real": ("isa.detection.cli", "3D detection on real SUN RGB-D depth frames (Table 2, right)"),
+    "scenes": ("isa.scenes.__main__", "the scene benchmark: make rooms, run category models on them, score, report"),
     "dataset": ("isa.render.dataset", "render a BOP training or test set of ModelNet10 or procedural objects"),
 }
 

@@ -28,7 +28,8 @@ def demo_config(seed: int = 0, categories=CATEGORIES, real: str | None = None) -
         categories=tuple(categories), modelnet=None, train_instances=6, test_instances=3, views=30,
         test_images=24, qualities=("Q1", "Q1+Q2+Q3"), stride=6,
         forest=ForestParams(n_trees=4, max_depth=14, n_candidates=40, seed=seed),
-        linemod=True, linemod_instances=2, ground_truth_skeletons=False, real=real, seed=seed, samples=8)
+        linemod=True, linemod_instances=2, ground_truth_skeletons=False, real=real, seed=seed, samples=8,
+        scenes=3, scene_views=2)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -34,7 +34,7 @@ from isa.forest.model import QUALITIES, ForestParams
 from isa.privileged.ssc import CENTRES
 from isa.privileged.symmetry import find_yaw_symmetry, recall_ceiling
 from isa.render.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset
-from isa.report.report import Report
+from isa.report.report import RESULTS_SCHEMA, Report
 
 PAPER_TEST_IMAGES = 264
 #: Our quality names -> the paper's row names in Table 2 (left).
@@ -64,6 +64,8 @@ class ExperimentConfig:
     max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
     mirror: bool = False  # add the mirrored copy of every training view of a mirror-symmetric instance (isa.privileged.mirror)
     canonical: bool = False  # label training views of turn-symmetric instances with one canonical pose (isa.privileged.symmetry)
+    scenes: int = 0  # procedural rooms of the scene benchmark (isa.scenes) to detect in with the Q1+Q2+Q3 forests
+    scene_views: int = 2  # camera views per room
     seed: int = 0
     samples: int = 8  # test frames drawn in the hypotheses figure
 
@@ -213,7 +215,11 @@ def _linemod(cfg, category, train, train_frames, test_frames, pts) -> dict:
 def _category_figures(cfg, category, out, report, train, train_frames, test_frames, evals, pts, res) -> None:
     from isa.report.figures.poses import hypotheses_sheet, recall_curves
     from isa.report.figures.renders import contact_sheet
-    from isa.report.figures.skeletons import com_vs_ssc, depth_with_skeleton, matched_grid
+    from isa.report.figures.skeletons import (
+        com_vs_ssc,
+        depth_with_skeleton,
+        matched_grid,
+    )
 
     report.heading(category.capitalize(), 2)
     report.text(f"{len(train.objects)} training instances x {cfg.views} views = {res['train_images']} images, "
@@ -292,7 +298,7 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
     out.mkdir(parents=True, exist_ok=True)
     report = Report(out, title)
     t_all = time.perf_counter()
-    results: dict = {"schema": "isa-results/1", "isa_version": __version__, "config": _config_dict(cfg),
+    results: dict = {"schema": RESULTS_SCHEMA, "isa_version": __version__, "config": _config_dict(cfg),
                      "machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "categories": {}}
     body = Report(out, "")  # per-category sections, appended after the summary
     for c in cfg.categories:
@@ -313,6 +319,8 @@ def run(cfg: ExperimentConfig, out: str | Path, title: str = "ISA: category-leve
     report.results = results
     if cfg.real:
         _real(cfg, out, report)
+    if cfg.scenes:
+        _scenes(cfg, out, report)
     path = report.write()
     print(f"report: {path}")
     return path
@@ -327,6 +335,23 @@ def _real(cfg: ExperimentConfig, out: Path, report: Report) -> None:
     frames = load_real_frames(cfg.real)
     result = evaluate_real(models, frames, progress=True)
     real_section(report, result, frames, label=f"ISA {q} (ours)")
+
+
+def _scenes(cfg: ExperimentConfig, out: Path, report: Report) -> None:
+    """The scene benchmark on a few procedural rooms (unseen instances), with this run's forests."""
+    from isa.scenes import make_scenes, sources
+    from isa.scenes.benchmark import run_datasets
+
+    q = "Q1+Q2+Q3" if "Q1+Q2+Q3" in cfg.qualities else cfg.qualities[-1]
+    models = {c: out / "models" / f"{c}-{q.replace('+', '')}.isa" for c in cfg.categories}
+    root = out / "scenes"
+    make_scenes(root, "test", sources.procedural(cfg.categories, seed=cfg.seed * 1000 + 3), cfg.scenes,
+                cfg.scene_views, cfg.seed)
+    run_datasets(report, {"procedural rooms": {
+        "kind": "scenes", "source": root, "split": "test",
+        "description": f"{cfg.scenes} procedural rooms x {cfg.scene_views} views (isa.scenes: floor, walls, clutter, "
+                       f"unseen procedural instances), the {q} forests above, today's detection (isa.detection)."}},
+        models, n_figures=2)
 
 
 def _config_dict(cfg: ExperimentConfig) -> dict:
@@ -371,6 +396,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--canonical", action="store_true",
                    help="label the training views of instances that a turn about the vertical axis maps onto "
                         "themselves (isa.privileged.symmetry) with one canonical pose of the turn group")
+    p.add_argument("--scenes", type=int, default=0, metavar="N",
+                   help="also detect in N procedural rooms of the scene benchmark (isa.scenes) with the forests")
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -383,7 +410,8 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         max_offset=a.max_offset,
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
         ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation,
-        ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, mirror=a.mirror, canonical=a.canonical, seed=a.seed)
+        ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, mirror=a.mirror, canonical=a.canonical,
+        scenes=a.scenes, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:

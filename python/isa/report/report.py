@@ -11,6 +11,9 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
+#: Version of the ``results.json`` layout (docs/results.md); bumped when its schema changes.
+RESULTS_SCHEMA = "isa-results/2"
+
 
 def _atomic_write_text(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")

@@ -12,3 +12,8 @@ from isa.scenes.writer import make_scenes
 
 __all__ = ["GroundTruth", "MeshSource", "SceneFrame", "make_scan2cad_scenes", "make_scenes", "modelnet_protocol", "modelnet_test",
            "modelnet_validation", "procedural", "read_scene_dataset"]
+
+# Scoring and the benchmark (the scoring helper's part).
+from isa.scenes.scoring import Detection, Scores, evaluate
+
+__all__ += ["Detection", "Scores", "evaluate"]
