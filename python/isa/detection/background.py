@@ -21,7 +21,7 @@ import numpy as np
 
 from isa.camera import Intrinsics
 from isa.detection.shapes import load_npz, save_npz
-from isa.exceptions import DataError
+from isa.exceptions import DataError, InvalidValueError
 
 __all__ = ["LeafForeground", "fit_leaf_foreground", "depth_mm", "weighted_predict"]
 
@@ -65,7 +65,7 @@ def fit_leaf_foreground(forest, images: Sequence[np.ndarray], parts: np.ndarray,
     ``positive`` (P,) bool (on an instance of the category or not)."""
     positive = np.asarray(positive, dtype=bool).reshape(-1)
     if len(positive) != len(parts):
-        raise ValueError(f"fit_leaf_foreground: {len(parts)} parts but {len(positive)} labels")
+        raise InvalidValueError(f"fit_leaf_foreground: {len(parts)} parts but {len(positive)} labels")
     A, B = int(positive.sum()), int((~positive).sum())
     if A == 0 or B == 0:
         raise DataError(f"fit_leaf_foreground({category!r}): needs positive and negative parts, got {A} and {B}")

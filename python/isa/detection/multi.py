@@ -31,7 +31,7 @@ from isa.detection.refine import RefineParams, refine_pose, upright_points
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import DepthEvidence, VerifyParams, verify_pose
 from isa.evaluation.boxes3d import Box3D, box_from_pose, footprint_intersection_area, iou_3d, rot_z
-from isa.exceptions import DataError
+from isa.exceptions import DataError, InvalidValueError
 
 __all__ = ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
            "nms_across", "write_bop_csv"]
@@ -184,7 +184,7 @@ def nms_across(boxes: Sequence[Box3D], iou: float = 0.25, overlap: float = 0.6) 
 def _to_metres(depth: np.ndarray) -> np.ndarray:
     depth = np.asarray(depth)
     if depth.ndim != 2:
-        raise ValueError(f"detect: depth must be (H, W), got {depth.shape}")
+        raise InvalidValueError(f"detect: depth must be (H, W), got {depth.shape}")
     if depth.dtype == np.uint16:
         return depth.astype(np.float32) / 1000.0
     return np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
@@ -324,7 +324,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     t0 = time.perf_counter()
     depth = _to_metres(depth)
     if depth.shape != (intrinsics.height, intrinsics.width):
-        raise ValueError(f"detect: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
+        raise InvalidValueError(f"detect: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
                          f"{intrinsics.width}x{intrinsics.height}")
     ms = _models(models)
     grav = estimate_gravity(depth, intrinsics, gravity)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from isa.camera import Intrinsics
+from isa.exceptions import InvalidValueError
 
 __all__ = ["VerifyParams", "Verification", "DepthEvidence", "visible_points", "verify_pose", "verify_shapes"]
 
@@ -88,7 +89,7 @@ class DepthEvidence:
         self.depth = np.ascontiguousarray(depth, dtype=np.float32)
         self.intrinsics = intrinsics
         if planes is not None and np.shape(planes) != self.depth.shape:
-            raise ValueError(f"DepthEvidence: planes mask {np.shape(planes)} does not match the depth "
+            raise InvalidValueError(f"DepthEvidence: planes mask {np.shape(planes)} does not match the depth "
                              f"{self.depth.shape}")
         self.planes = None if planes is None else np.asarray(planes, dtype=bool)
         g = np.arange(self.GRID) - self.GRID // 2
