@@ -81,9 +81,9 @@ def main() -> int:
         ("vote, planes removed", _median_s(lambda: predict(forest, planes.depth, frame.intrinsics, **kw), a.repeats)),
         ("boxes + NMS (planes given)", None),
         ("detect total (planes + vote + boxes)",
-         _median_s(lambda: D.detect(forest, frame.depth, frame.intrinsics, frame.R_gravity, box, p), a.repeats)),
+         _median_s(lambda: D.detect_category(forest, frame.depth, frame.intrinsics, frame.R_gravity, box, p), a.repeats)),
     ]
-    det = D.detect(forest, frame.depth, frame.intrinsics, frame.R_gravity, box, p, planes=planes)
+    det = D.detect_category(forest, frame.depth, frame.intrinsics, frame.R_gravity, box, p, planes=planes)
     rows[5] = (rows[5][0], det.seconds["boxes"])
     base = rows[0][1]
     print(f"real frame {frame.name}: {w}x{h}, {int((frame.depth > 0).sum()):,} valid pixels "

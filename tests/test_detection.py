@@ -206,14 +206,14 @@ def test_end_to_end_on_a_rendered_chair_on_a_floor(chair_model):
     # Truth: the chair mesh's own box at the known pose (not through hypothesis_box).
     truth = Box3D("chair", rot_z(yaw) @ test.bounds.mean(0) + pos - eye, test.bounds[1] - test.bounds[0], yaw)
 
-    det = D.detect(forest, depth, KINECT_V1, Rg)
+    det = D.detect_category(forest, depth, KINECT_V1, Rg)
     assert det.planes.floor.height == pytest.approx(-1.4, abs=0.01)
     assert det.boxes, det.rejected
     best = det.boxes[0]
     assert iou_3d(best, truth) > 0.25, (best, truth)
     assert best.z_range[0] == pytest.approx(-1.4, abs=0.01)  # set down on the floor
     # Without plane removal the floor's votes are not filtered out: still a valid call.
-    raw = D.detect(forest, depth, KINECT_V1, Rg, params=D.DetectionParams(remove_floor=False, remove_walls=False))
+    raw = D.detect_category(forest, depth, KINECT_V1, Rg, params=D.DetectionParams(remove_floor=False, remove_walls=False))
     assert raw.planes is None and all(b.category == "chair" for b in raw.boxes)
 
 

@@ -18,6 +18,8 @@ ALLOWED = {
     ("evaluation/linemod.py", "RuntimeError"): "an internal invariant of OpenCV's Linemod broke (a bug, not bad input)",
     ("data/bop.py", "NotImplementedError"): "the abstract frame reader of the lazy frame sequences' base class",
     ("detection/cli.py", "SystemExit"): "a command-line usage error: argparse's way out",
+    ("detection/evaluate.py", "SystemExit"): "a command-line usage error: argparse's way out",
+    ("scenes/__main__.py", "SystemExit"): "a command-line usage error: argparse's way out",
 }
 
 

@@ -29,10 +29,10 @@ from isa.data.modelnet import paper_instances
 from isa.evaluation.pose_metrics import average_distance, model_points, recall_curve
 from isa.evaluation.published import POSE_RECALL
 from isa.exceptions import DataError
+from isa.forest.build import augmented_frames, model_metadata, procedural_training, training_summary
 from isa.forest.model import QUALITIES, ForestParams
-from isa.privileged.mirror import find_mirror, with_mirrored
 from isa.privileged.ssc import CENTRES
-from isa.privileged.symmetry import canonical_frames, common_subgroup, find_yaw_symmetry, recall_ceiling
+from isa.privileged.symmetry import find_yaw_symmetry, recall_ceiling
 from isa.render.dataset import default_test_views, modelnet_objects, procedural_objects, render_dataset
 from isa.report.report import RESULTS_SCHEMA, Report
 
@@ -83,8 +83,9 @@ def _objects(cfg: ExperimentConfig, category: str, split: str):
                 raise DataError(f"{category}: validation instances overlap the {n_train} training instances")
             return objs
         return modelnet_objects(cfg.modelnet, category, n, split=split, seed=cfg.seed, first_obj_id=first)
-    n = (cfg.train_instances or 8) if split == "train" else (cfg.test_instances or 4)
-    return procedural_objects(category, n, seed=cfg.seed * 1000 + (1 if split == "train" else 2), first_obj_id=first)
+    if split == "train":
+        return procedural_training(category, cfg.train_instances or 8, cfg.seed)
+    return procedural_objects(category, cfg.test_instances or 4, seed=cfg.seed * 1000 + 2, first_obj_id=first)
 
 
 def _test_frames(root: Path, n_images: int):
@@ -119,15 +120,9 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
                    views=lambda o: default_test_views(o, per_obj, seed=cfg.seed))
     tm["render"] = time.perf_counter() - t0
     train_frames = pipeline.load_frames(data, "train", lazy=True)  # read on use: beyond runs hold 6,052 views
-    forest_frames = train_frames  # Linemod and the figures keep the rendered views only
-    if cfg.mirror:
-        mirrors = {o.obj_id: find_mirror(o.mesh) for o in train.objects}
-        res["mirrored_instances"] = sum(m is not None for m in mirrors.values())
-        forest_frames = with_mirrored(train_frames, mirrors)
-    if cfg.canonical:
-        syms = common_subgroup({o.obj_id: find_yaw_symmetry(o.mesh) for o in train.objects})
-        res["canonical_instances"] = sum(s.is_symmetric for s in syms.values())
-        forest_frames = canonical_frames(forest_frames, syms)
+    # Linemod and the figures keep the rendered views only.
+    forest_frames, counts = augmented_frames(train_frames, train.objects, cfg.mirror, cfg.canonical)
+    res.update(counts)
     test_frames = _test_frames(data, cfg.test_images)
     t0 = time.perf_counter()
     ts = pipeline.training_set(forest_frames, train.skeletons, stride=cfg.stride)
@@ -137,11 +132,8 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     models = {o.obj_id: o.mesh for o in test.objects}
     pts = {k: model_points(m) for k, m in models.items()}
     res["symmetry"] = _symmetry_ceiling(test.objects, test_frames, pts)
-    from isa.detection.category_boxes import box_metadata, category_box
-
-    meta = {"category": category, "ssc": train.ssc.ssc.to_dict(), "centre": train.ssc.centre,
-            "template": train.ssc.template.to_dict(),
-            "isa_version": __version__, **box_metadata(category_box(train))}
+    summary = training_summary(train, views=cfg.views, stride=cfg.stride, seed=cfg.seed, mirror=cfg.mirror,
+                               canonical=cfg.canonical, images=len(forest_frames), parts=len(ts))
     max_offset = cfg.max_offset if cfg.max_offset is not None else pipeline.scaled_max_offset(ts, train_frames[0].intrinsics.fx)
     res["max_offset"] = max_offset
     evals = {}
@@ -149,7 +141,7 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     for q in cfg.qualities:
         params = replace(cfg.forest, quality=q, max_offset=max_offset)
         t0 = time.perf_counter()
-        forest = pipeline.train_forest(ts, params, metadata={**meta, "quality": q})
+        forest = pipeline.train_forest(ts, params, metadata=model_metadata(train, q, summary))
         train_s = time.perf_counter() - t0
         (out / "models").mkdir(parents=True, exist_ok=True)
         forest.save(out / "models" / f"{category}-{q.replace('+', '')}.isa")

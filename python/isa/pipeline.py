@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -73,13 +73,14 @@ class PreparedCategory:
     origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the origin before re-centring
 
 
-def _matched_skeleton(obj: ObjectSpec, template: SkeletonGraph, use_ground_truth: bool) -> tuple[SkeletonGraph, np.ndarray]:
+def _matched_skeleton(obj: ObjectSpec, template: SkeletonGraph, use_ground_truth: bool,
+                      extract: Callable[[trimesh.Trimesh], SkeletonGraph] = extract_skeleton) -> tuple[SkeletonGraph, np.ndarray]:
     """The instance's template-matched skeleton and its solid centre of mass."""
     if use_ground_truth and obj.skeleton is not None:
         # Procedural ground truth already names the template's nodes in the same order.
         sk = SkeletonGraph(obj.skeleton.nodes, template.links, template.names, {"matched": [True] * len(template.nodes)})
         return sk, centre_of_mass(obj.mesh)
-    raw = extract_skeleton(obj.mesh)
+    raw = extract(obj.mesh)
     # Extraction's voxelisation already gives the solid COM; no second voxelisation.
     return match_skeleton(raw, template, obj.mesh.bounds), np.asarray(raw.meta["com"], float)
 
@@ -101,6 +102,8 @@ def prepare_category(
     progress: bool = True,
     tie_tolerance: int = 0,
     centre: str | None = None,
+    template: SkeletonGraph | None = None,
+    extract: Callable[[trimesh.Trimesh], SkeletonGraph] | None = None,
 ) -> PreparedCategory:
     """Skeletons matched to the category template, the SSC (fitted here on ``objects`` when
     ``ssc`` is None: the training instances; given: the test instances), and every instance moved
@@ -111,12 +114,15 @@ def prepare_category(
     ``tie_tolerance``: nodes within this many votes of the most repetitive one share the SSC
     (:func:`isa.privileged.ssc.select_ssc`). ``centre``: ``"ssc"``, ``"com"`` or ``"box"`` (:data:`isa.privileged.ssc.CENTRES`),
     default the category's :data:`isa.categories.CENTRE`; ignored when ``ssc`` is given (it has one).
+    ``template``: the skeleton template when ``ssc`` is None (default :func:`category_template`,
+    which knows the paper's four categories). ``extract``: the skeleton extractor (default
+    :func:`isa.privileged.skeleton.extract_skeleton`; :class:`isa.forest.build.SkeletonCache` remembers it).
     """
     if not objects:
         raise DataError(f"prepare_category({category!r}): no instances")
-    template = ssc.template if ssc is not None else category_template(category)
+    template = ssc.template if ssc is not None else (template or category_template(category))
     pairs = [
-        _matched_skeleton(o, template, use_ground_truth)
+        _matched_skeleton(o, template, use_ground_truth, extract or extract_skeleton)
         for o in tqdm(objects, desc=f"skeletons {category}", disable=not progress, leave=False)
     ]
     matched = [m for m, _ in pairs]

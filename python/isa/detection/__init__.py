@@ -42,7 +42,7 @@ __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
         "CategoryBox", "category_box", "box_metadata", "model_box",
     ],
     "hypotheses": [
-        "DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect", "detect_frame",
+        "DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect_category", "detect_frame",
     ],
     "training": [
         "train_detector",
@@ -53,4 +53,11 @@ __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
     "cli": [
         "main",
     ],
+    "shapes": ["ShapeLibrary", "shape_library"],
+    "verify": ["VerifyParams", "Verification", "DepthEvidence", "verify_pose"],
+    "refine": ["RefineParams", "Refinement", "refine_pose", "upright_points"],
+    "gravity": ["GravityEstimate", "estimate_gravity"],
+    "background": ["LeafForeground", "fit_leaf_foreground", "weighted_predict"],
+    "multi": ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
+              "nms_across", "write_bop_csv"],
 })

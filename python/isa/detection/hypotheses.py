@@ -108,9 +108,10 @@ def _forest(model, source: str | None = None):
     return model, source or "model"
 
 
-def detect(forest, depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray, box: CategoryBox | None = None,
-           params: DetectionParams = DetectionParams(), planes: PlaneRemoval | None = None,
-           category: str | None = None) -> Detections:
+def detect_category(forest, depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray,
+                    box: CategoryBox | None = None,
+                    params: DetectionParams = DetectionParams(), planes: PlaneRemoval | None = None,
+                    category: str | None = None) -> Detections:
     """Detect one category in one depth frame (steps: :mod:`isa.detection`).
 
     ``forest``: :class:`isa.forest.model.Forest` or a model path; ``depth`` (H, W) float metres; ``box``:
@@ -177,7 +178,7 @@ def detect_frame(models: Mapping[str, Any], frame, params: DetectionParams = Det
     out = {}
     for cat, model in models.items():
         box = (boxes or {}).get(cat)
-        det = detect(model, frame.depth, frame.intrinsics, frame.R_gravity, box, params, planes, category=cat)
+        det = detect_category(model, frame.depth, frame.intrinsics, frame.R_gravity, box, params, planes, category=cat)
         det.seconds["planes"] = t_planes
         out[cat] = det
     return out

@@ -14,6 +14,6 @@ __all__ = ["GroundTruth", "MeshSource", "SceneFrame", "make_scan2cad_scenes", "m
            "modelnet_validation", "procedural", "read_scene_dataset"]
 
 # Scoring and the benchmark (the scoring helper's part).
-from isa.scenes.scoring import Detection, Scores, evaluate  # noqa: E402
+from isa.scenes.scoring import Detection, Scores, evaluate
 
 __all__ += ["Detection", "Scores", "evaluate"]

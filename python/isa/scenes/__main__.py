@@ -17,8 +17,6 @@ import platform
 import time
 from pathlib import Path
 
-os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-
 from isa.exceptions import IsaError
 
 

@@ -1,0 +1,103 @@
+"""Background parts: leaf probabilities learned from parts on and off chairs in rendered rooms
+lower the weight of floor and wall votes in an unseen room; without them the weighted path
+gives the forest's own hypotheses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from isa.camera import KINECT_V1
+from isa.evaluation.boxes3d import rot_z
+from isa.render.views import look_at
+
+
+def _room(mesh, x, y, yaw, eye, target, clutter=True):
+    """Depth of ``mesh`` on a floor before a wall (and a box beside it), the object's visible
+    pixels and its true (R, t)."""
+    from isa.render.renderer import DepthRenderer
+
+    T = np.eye(4)
+    T[:3, :3] = rot_z(yaw)
+    T[:3, 3] = (x, y, -mesh.bounds[0, 2])
+    parts = [trimesh.creation.box((8, 8, 0.02), trimesh.transformations.translation_matrix((0, 0, -0.01))),
+             trimesh.creation.box((8, 0.05, 2.6), trimesh.transformations.translation_matrix((0, 3.0, 1.3)))]
+    if clutter:
+        beside = trimesh.transformations.translation_matrix((x - 1.1, y, 0.3))
+        parts.append(trimesh.creation.box((0.5, 0.4, 0.6), beside))
+    obj = mesh.copy()
+    obj.apply_transform(T)
+    R_wc, t_wc = look_at(np.asarray(eye, float), np.asarray(target, float))
+    R, t = R_wc @ T[:3, :3], R_wc @ T[:3, 3] + t_wc
+    with DepthRenderer(KINECT_V1) as r:
+        depth, _ = r.render(trimesh.util.concatenate([*parts, obj]), R_wc, t_wc)
+        alone, mask = r.render(mesh, R, t)
+    return depth, mask & (np.abs(depth - alone) < 0.01), (R, t)
+
+
+def _labelled_parts(rooms, stride=4):
+    from isa import _core
+    from isa.detection.background import depth_mm
+
+    images = [depth_mm(d) for d, _, _ in rooms]
+    parts = _core.sample_parts(images, stride=stride)
+    on = np.array([rooms[i][1][v, u] for i, u, v in parts])
+    return images, parts, on
+
+
+@pytest.fixture(scope="module")
+def trained():
+    from isa.detection import train_detector
+    from isa.forest import ForestParams
+    from isa.render.dataset import procedural_objects
+
+    objs = procedural_objects("chair", 3, seed=7)
+    params = ForestParams(n_trees=3, max_depth=12, n_candidates=30, quality="Q1")
+    forest, prepared = train_detector("chair", objs, views=20, stride=6, use_ground_truth=True, forest_params=params)
+    return forest, prepared
+
+
+@pytest.mark.slow
+def test_weighted_path_without_probabilities_gives_the_forests_hypotheses(trained):
+    from isa.detection.background import weighted_predict
+
+    forest, prepared = trained
+    depth, _, _ = _room(prepared.objects[0].mesh, 0.2, 0.6, 0.5, (0.0, -1.8, 1.3), (0.2, 0.6, 0.4))
+    ours = weighted_predict(forest, None, depth, KINECT_V1, stride=4, max_hypotheses=3)
+    ref = forest.predict(depth, KINECT_V1, stride=4, max_hypotheses=3)
+    assert ours and ref
+    np.testing.assert_allclose(ours[0]["t"], ref[0]["t"], atol=0.01)
+    # Scores agree to a few percent (the core rounds the float depth to mm its own way).
+    assert ours[0]["score"] == pytest.approx(ref[0]["score"], rel=0.1)
+
+
+@pytest.mark.slow
+def test_background_parts_lower_floor_and_wall_votes_in_an_unseen_room(trained, tmp_path):
+    from isa.detection.background import LeafForeground, fit_leaf_foreground
+    from isa.pipeline import prepare_category
+    from isa.render.dataset import procedural_objects
+
+    forest, prepared = trained
+    train_rooms = [_room(o.mesh, x, y, yaw, eye, (x, y, 0.4)) for o, (x, y, yaw, eye) in zip(
+        prepared.objects, [(0.2, 0.6, 0.5, (0.0, -1.8, 1.3)), (-0.3, 1.0, 2.0, (0.5, -1.5, 1.6)),
+                           (0.4, 0.8, -1.2, (-0.4, -2.0, 1.1))], strict=True)]
+    images, parts, on = _labelled_parts(train_rooms)
+    fg = fit_leaf_foreground(forest, images, parts, on, category="chair")
+    assert fg.n_positive == on.sum() and fg.n_negative == (~on).sum()
+    fg.save(tmp_path / "fg.npz")
+    fg = LeafForeground.load(tmp_path / "fg.npz")
+
+    unseen = prepare_category("chair", procedural_objects("chair", 1, seed=99), ssc=prepared.ssc,
+                              use_ground_truth=True, progress=False).objects[0].mesh
+    test = _room(unseen, -0.1, 0.9, 2.6, (0.3, -1.6, 1.5), (-0.1, 0.9, 0.3))
+    images, parts, on = _labelled_parts([test])
+    p = fg.of(forest.apply(images, parts)).mean(1)
+    # Parts of the unseen chair reach leaves that mostly held chair parts; floor, wall and box
+    # parts reach leaves that mostly held background.
+    assert p[on].mean() > p[~on].mean() + 0.2, (p[on].mean(), p[~on].mean())
+    # So the votes' weight moves onto the chair: its share of the total grows.
+    v = forest.votes(images, parts)
+    w_on = v["weight"] * on[v["part"]]
+    pw = fg.of(forest.apply(images, parts))[v["part"], v["tree"]]
+    assert (w_on * pw).sum() / (v["weight"] * pw).sum() > 1.5 * w_on.sum() / v["weight"].sum()
