@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from isa.evaluation.boxes3d import Box3D, average_precision, rot_z
-from isa.exceptions import InvalidInputError, InvalidParameterError
+from isa.exceptions import InvalidInputError
 from isa.privileged.symmetry import YawSymmetry
 from isa.scenes.io import GroundTruth, box_points
 from isa.scenes.scoring import Detection, evaluate, symmetry_transforms
@@ -205,12 +205,21 @@ def test_detection_box_round_trip_under_tilted_gravity():
     assert Detection.from_dict(d.to_dict()).box(grav).centre == pytest.approx(box.centre)
 
 
-def test_bad_input_is_named():
+def test_bad_input_is_named(tmp_path):
+    from isa.scenes.benchmark import load_detections, load_models
+
+    with pytest.raises(FileNotFoundError, match="no.isa"):
+        load_models({"chair": tmp_path / "no.isa"})
+    (tmp_path / "d.json").write_text("{}")
+    with pytest.raises(ValueError, match="d.json"):
+        load_detections(tmp_path / "d.json")
+    with pytest.raises(TypeError, match="Detection or a Box3D"):
+        evaluate([[]], [["chair"]])
     with pytest.raises(InvalidInputError, match="frames"):
         evaluate([[]], [[], []])
     with pytest.raises(InvalidInputError, match="size"):
         Detection("chair", np.eye(3), (0, 0, 1), (0.5, -1, 1), 0.5)
-    with pytest.raises(InvalidParameterError, match="min_visib"):
+    with pytest.raises(ValueError, match="min_visib"):
         evaluate([[]], [[]], min_visib=2)
 
 

@@ -93,7 +93,12 @@ def cmd_make(a) -> None:
 
 def cmd_run(a) -> None:
     from isa.report.report import Report
-    from isa.scenes.benchmark import run_datasets, save_detections
+    from isa.scenes.benchmark import (
+        dataset_views,
+        load_models,
+        run_datasets,
+        save_detections,
+    )
 
     t0 = time.perf_counter()
     datasets = {}
@@ -103,9 +108,13 @@ def cmd_run(a) -> None:
         datasets["SUN RGB-D"] = {"kind": "sun", "source": a.sun, "limit": a.limit}
     if not datasets:
         raise SystemExit("run: give --scenes ROOT (repeatable) and/or --sun DIR")
+    # Models and frames are read before anything is written, so a bad argument leaves no output.
+    forests, _ = load_models(parse_models(a.models))
+    for d in datasets.values():
+        d["views"] = dataset_views(d["kind"], d["source"], d.get("split"), d.get("limit"))
     out = Path(a.out)
     report = Report(out, a.title)
-    stored = run_datasets(report, datasets, parse_models(a.models), _detection_params(a), a.min_visib, a.figures)
+    stored = run_datasets(report, datasets, forests, _detection_params(a), a.min_visib, a.figures)
     save_detections(out / "detections.json", stored)
     path = _write(report, a, t0, "run")
     _print_summary(report.results["scenes"])

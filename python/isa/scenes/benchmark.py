@@ -31,7 +31,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from isa.camera import Intrinsics
-from isa.exceptions import DataError
+from isa.exceptions import DataError, DataNotFoundError
 from isa.scenes.scoring import (
     METRICS,
     VISIB_BINS,
@@ -117,7 +117,7 @@ def load_models(models: Mapping[str, Any]) -> tuple[dict, dict]:
         if isinstance(m, (str, os.PathLike)):
             path = Path(m)
             if not path.is_file():
-                raise DataError(f"{path}: {cat} model file not found")
+                raise DataNotFoundError(f"{path}: {cat} model file not found")
             forests[cat], sources[cat] = Forest.load(path), str(path)
         else:
             forests[cat], sources[cat] = m, "in memory"
@@ -167,7 +167,7 @@ def load_detections(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
     """Read :func:`save_detections`' file back (detections as :class:`Detection`)."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"{path}: detections file not found")
+        raise DataNotFoundError(f"{path}: detections file not found")
     try:
         doc = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -224,22 +224,23 @@ def scenes_section(report, name: str, views: Sequence[View], detections: Sequenc
         ms = scores.metrics[c]
         some = next(m for m in ms.values() if m is not None)
         rows.append([c, *(_pct(None if ms[m] is None else 100 * ms[m].ap) for m in METRICS),
-                     f"{some.n_ground_truth} ({some.n_ignored} ignored)"])
-    report.table(["category", *(_METRIC_NAMES[m] for m in METRICS), "objects"], rows)
+                     f"{some.n_ground_truth} (+{some.n_ignored})", f"{some.n_detections}"])
+    report.table(["category", *(_METRIC_NAMES[m] for m in METRICS), "objects (+ ignored)", "detections"], rows)
     bins = [f"{lo:g}-{hi:g}" for lo, hi in VISIB_BINS]
     rows = []
     for c in cats:
         for m in METRICS:
             s = scores.metrics[c][m]
-            if s is None:
+            if s is None or s.n_ground_truth + s.n_ignored == 0:
                 continue
             rec = [f"{_pct(100 * s.recall_by_visib[b][0])} ({s.recall_by_visib[b][1]})" for b in bins]
             t = "n/a" if s.median_translation_m is None else f"{100 * s.median_translation_m:.1f}"
             r = "n/a" if s.median_rotation_deg is None else f"{s.median_rotation_deg:.1f}"
             rows.append([c, _METRIC_NAMES[m], _pct(100 * s.final_recall), *rec, f"{s.n_true_positive}", t, r])
-    report.text("Recall (%) of all detections, of the counted objects and by the objects' visible fraction (objects "
-                "in the bin in brackets; ignored ones included), and the median errors of the true positives (translation of the pose, or "
-                "of the box centre without one).")
+    report.text("Recall (%) of all detections: of the counted objects, and by the objects' visible fraction "
+                "(objects in the bin in brackets, ignored ones included); median errors of the true positives "
+                "(translation of the pose, or of the box centre without one; rotation against the nearest "
+                "symmetric pose, except under Eq. 14).")
     report.table(["category", "metric", "recall", *(f"recall, visib {b}" for b in bins), "TPs", "median t error (cm)",
                   "median rotation error (deg)"], rows)
     slug = "".join(ch if ch.isalnum() else "-" for ch in name.lower())
@@ -279,7 +280,7 @@ def run_datasets(report, datasets: Mapping[str, Mapping[str, Any]], models: Mapp
                  min_visib: float | None = None, n_figures: int = 3, progress: bool = True,
                  heading_level: int = 2) -> dict[str, dict[str, Any]]:
     """Detect, score and report every dataset. ``datasets``: name -> {"kind", "source", "split",
-    optional "limit", "description"}; ``models``: category -> model path or Forest. Returns what
+    optional "limit", "description", "views" (already read)}; ``models``: category -> model path or Forest. Returns what
     :func:`save_detections` stores (name -> the dataset's entry with its frames and detections)."""
     from isa.detection.hypotheses import DetectionParams
 
@@ -287,7 +288,7 @@ def run_datasets(report, datasets: Mapping[str, Mapping[str, Any]], models: Mapp
     forests, sources = load_models(models)
     stored = {}
     for name, d in datasets.items():
-        views = dataset_views(d["kind"], d["source"], d.get("split"), d.get("limit"))
+        views = d.get("views") or dataset_views(d["kind"], d["source"], d.get("split"), d.get("limit"))
         t0 = time.perf_counter()
         dets, secs = detect_views(forests, views, params, progress, desc=f"detect {name}")
         seconds = time.perf_counter() - t0

@@ -44,7 +44,7 @@ import numpy as np
 
 from isa.evaluation.boxes3d import Box3D, box_from_pose, iou_matrix, rot_z, voc_ap
 from isa.evaluation.pose_metrics import average_distance, model_diameter
-from isa.exceptions import InvalidInputError, InvalidParameterError
+from isa.exceptions import InvalidTypeError, InvalidValueError
 
 __all__ = [
     "LEVEL_GRAVITY",
@@ -81,14 +81,14 @@ LEVEL_GRAVITY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 def _vec3(v, name: str) -> np.ndarray:
     a = np.asarray(v, dtype=float).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{name}: expected 3 finite numbers, got {v!r}")
+        raise InvalidValueError(f"{name}: expected 3 finite numbers, got {v!r}")
     return a
 
 
 def _rot(R, name: str) -> np.ndarray:
     a = np.asarray(R, dtype=float)
     if a.shape != (3, 3) or not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{name}: expected a finite 3x3 rotation, got shape {a.shape}")
+        raise InvalidValueError(f"{name}: expected a finite 3x3 rotation, got shape {a.shape}")
     return a
 
 
@@ -111,11 +111,11 @@ class Detection:
         object.__setattr__(self, "t", _vec3(self.t, f"Detection({self.category!r}).t"))
         size = _vec3(self.size, f"Detection({self.category!r}).size")
         if np.any(size <= 0):
-            raise InvalidInputError(f"Detection({self.category!r}).size: must be positive, got {size}")
+            raise InvalidValueError(f"Detection({self.category!r}).size: must be positive, got {size}")
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "box_centre", _vec3(self.box_centre, f"Detection({self.category!r}).box_centre"))
         if not math.isfinite(float(self.score)):
-            raise InvalidInputError(f"Detection({self.category!r}).score: must be finite, got {self.score}")
+            raise InvalidValueError(f"Detection({self.category!r}).score: must be finite, got {self.score}")
         object.__setattr__(self, "score", float(self.score))
 
     def box(self, gravity: np.ndarray | None = None) -> Box3D:
@@ -145,7 +145,7 @@ class Detection:
         try:
             return cls(d["category"], d["R"], d["t"], d["size"], d["score"], d.get("box_centre", (0.0, 0.0, 0.0)))
         except (KeyError, TypeError) as exc:
-            raise InvalidInputError(f"detection: needs category, R, t, size, score; got {d!r} ({exc})") from None
+            raise InvalidValueError(f"detection: needs category, R, t, size, score; got {d!r} ({exc})") from None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -185,11 +185,11 @@ def symmetry_transforms(symmetries: Sequence | str = (), n_continuous: int = N_C
     for s in symmetries:
         if isinstance(s, str):
             if s != "continuous-z":
-                raise InvalidInputError(f"symmetry: unknown name {s!r} (expected 'continuous-z')")
+                raise InvalidValueError(f"symmetry: unknown name {s!r} (expected 'continuous-z')")
             turns((0, 0, 1), c0, 2 * np.pi * np.arange(1, n_continuous) / n_continuous)
         elif isinstance(s, Mapping):
             if "axis" not in s:
-                raise InvalidInputError(f"symmetry: a continuous symmetry needs 'axis', got {s!r}")
+                raise InvalidValueError(f"symmetry: a continuous symmetry needs 'axis', got {s!r}")
             turns(_vec3(s["axis"], "symmetry axis"), _vec3(s.get("offset", (0, 0, 0)), "symmetry offset"),
                   2 * np.pi * np.arange(1, n_continuous) / n_continuous)
         elif hasattr(s, "order") and hasattr(s, "centre"):
@@ -207,7 +207,7 @@ def symmetry_transforms(symmetries: Sequence | str = (), n_continuous: int = N_C
                 Rs.append(a)
                 ts.append(c0 - a @ c0)
             else:
-                raise InvalidInputError(f"symmetry: expected a 3x3 or 4x4 matrix, got shape {a.shape}")
+                raise InvalidValueError(f"symmetry: expected a 3x3 or 4x4 matrix, got shape {a.shape}")
     return np.array(Rs), np.array(ts)
 
 
@@ -261,7 +261,7 @@ def _target(g, gravity: np.ndarray, cache: dict) -> _Target:
         else:
             pts = np.asarray(pts, dtype=float)
             if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
-                raise InvalidInputError(f"{name}.points: expected (N, 3), got shape {pts.shape}")
+                raise InvalidValueError(f"{name}.points: expected (N, 3), got shape {pts.shape}")
             centre = (pts.min(0) + pts.max(0)) / 2
         diam = model_diameter(pts)
         if key is not None:
@@ -282,7 +282,7 @@ def _candidate(d, gravity: np.ndarray) -> _Candidate:
     if isinstance(d, Box3D):
         return _Candidate(d.category, d, d.score)
     if not isinstance(d, Detection):
-        raise InvalidInputError(f"detection: expected a Detection or a Box3D, got {type(d).__name__}")
+        raise InvalidTypeError(f"detection: expected a Detection or a Box3D, got {type(d).__name__}")
     return _Candidate(d.category, d.box(gravity), d.score, d.R, d.t)
 
 
@@ -331,6 +331,11 @@ def _pose_errors(d: _Candidate, g: _Target, symmetric: bool) -> tuple[float, flo
 # Results
 
 
+def _percent(v: float | None) -> float | None:
+    """A fraction as a JSON percentage (None for nan)."""
+    return None if v is None or math.isnan(v) else 100.0 * v
+
+
 def _bin_name(lo: float, hi: float) -> str:
     return f"{lo:g}-{hi:g}"
 
@@ -344,7 +349,8 @@ class MetricScore:
     ignored ones; ``n_detections`` ranked detections (ignored ones left out), ``n_true_positive``;
     ``recall_by_visib`` bin name -> (recall or nan, objects in the bin); ``ap_by_visib`` bin name ->
     AP with only that bin's objects counted; ``median_translation_m`` / ``median_rotation_deg``
-    over the true positives (None when there are none, or for boxes without poses).
+    over the true positives (None when there are none, or for boxes without poses): for every
+    metric but ``6d`` against the symmetric pose of the object closest to the detection.
     """
 
     metric: str
@@ -368,13 +374,11 @@ class MetricScore:
 
     def to_dict(self) -> dict:
         """JSON-ready, percentages 0-100, None for nan."""
-        def pct(v):
-            return None if v is None or math.isnan(v) else 100.0 * v
-
-        return {"ap": pct(self.ap), "recall": pct(self.final_recall), "n_ground_truth": self.n_ground_truth, "n_ignored": self.n_ignored,
+        return {"ap": _percent(self.ap), "recall": _percent(self.final_recall),
+                "n_ground_truth": self.n_ground_truth, "n_ignored": self.n_ignored,
                 "n_detections": self.n_detections, "n_true_positive": self.n_true_positive,
-                "recall_by_visib": {k: {"recall": pct(r), "n": n} for k, (r, n) in self.recall_by_visib.items()},
-                "ap_by_visib": {k: pct(v) for k, v in self.ap_by_visib.items()},
+                "recall_by_visib": {k: {"recall": _percent(r), "n": n} for k, (r, n) in self.recall_by_visib.items()},
+                "ap_by_visib": {k: _percent(v) for k, v in self.ap_by_visib.items()},
                 "median_translation_m": self.median_translation_m, "median_rotation_deg": self.median_rotation_deg}
 
 
@@ -454,12 +458,12 @@ def evaluate(ground_truth: Sequence[Sequence], detections: Sequence[Sequence], g
     module docstring). ``gravity[f]``: the frame's camera-to-upright rotation (None: level camera),
     used for the boxes; ``categories``: those scored (default: every category in either list)."""
     if len(ground_truth) != len(detections):
-        raise InvalidInputError(f"evaluate: {len(detections)} detection lists for {len(ground_truth)} frames")
+        raise InvalidValueError(f"evaluate: {len(detections)} detection lists for {len(ground_truth)} frames")
     gravity = [None] * len(ground_truth) if gravity is None else list(gravity)
     if len(gravity) != len(ground_truth):
-        raise InvalidInputError(f"evaluate: {len(gravity)} gravity rotations for {len(ground_truth)} frames")
+        raise InvalidValueError(f"evaluate: {len(gravity)} gravity rotations for {len(ground_truth)} frames")
     if not 0 <= min_visib <= 1:
-        raise InvalidParameterError(f"min_visib: must be in [0, 1], got {min_visib}")
+        raise InvalidValueError(f"min_visib: must be in [0, 1], got {min_visib}")
     grav = [LEVEL_GRAVITY if g is None else _rot(g, f"gravity[{f}]") for f, g in enumerate(gravity)]
     cache: dict = {}
     targets = [[_target(g, grav[f], cache) for g in frame] for f, frame in enumerate(ground_truth)]
@@ -532,7 +536,7 @@ def _score(cat, metric, order, det_frame, det_row, S, thr, visib, min_visib, cd,
         j = int(np.argmax(S[f][det_row[d]]))
         c, g = cd[f][det_row[d]], tg[f][j]
         if has_pose:
-            te, re = _pose_errors(c, g, metric == "6d_sym")
+            te, re = _pose_errors(c, g, metric != "6d")  # a box does not see a symmetric turn either
             t_err.append(te)
             r_err.append(re)
         else:
