@@ -29,6 +29,9 @@
 //!   Log-determinants come from a Cholesky factorisation (faer's `cholesky_in_place` above 8
 //!   dimensions, an inline one for tiny blocks, the two checked against each other); a pivot
 //!   that rounding pushes below `reg · 1e-3` is clamped there, so no gain is ever NaN or ±inf.
+//!
+//! (Over 600 lines: one concept, the three terms share the layout and the Cholesky kernels;
+//! the last hundred lines are its tests.)
 
 // `!(x > y)` is deliberate throughout: it is true for NaN too, which is clamped, never passed on.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -43,6 +46,7 @@ use faer::{Mat, MatMut, Par, Side};
 
 use crate::error::{IsaError, Result};
 use crate::params::Quality;
+use crate::rotation::quat_to_6d;
 
 /// Which target a block of the target vector holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -223,22 +227,6 @@ fn check_finite(name: &str, a: &[f32], w: usize) -> Result<()> {
         )));
     }
     Ok(())
-}
-
-/// Rotation matrix columns 0 and 1 of a quaternion `(w, x, y, z)` (normalised here).
-#[inline]
-pub fn quat_to_6d(q: &[f32]) -> [f64; 6] {
-    let (w, x, y, z) = (q[0] as f64, q[1] as f64, q[2] as f64, q[3] as f64);
-    let n = (w * w + x * x + y * y + z * z).sqrt();
-    let (w, x, y, z) = (w / n, x / n, y / n, z / n);
-    [
-        1.0 - 2.0 * (y * y + z * z),
-        2.0 * (x * y + w * z),
-        2.0 * (x * z - w * y),
-        2.0 * (x * y - w * z),
-        1.0 - 2.0 * (x * x + z * z),
-        2.0 * (y * z + w * x),
-    ]
 }
 
 /// Builds the criterion's targets for `quality` (see the module doc for every step).

@@ -15,6 +15,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::depth::{DepthStore, ImageRef, Part};
+use crate::probe::probe;
 
 /// Depth (mm) read by a probe outside the image or on a pixel with missing depth.
 pub const BACKGROUND_MM: f32 = 10_000.0;
@@ -24,26 +25,6 @@ pub const BACKGROUND_MM: f32 = 10_000.0;
 pub struct Feature {
     pub u: [f32; 2],
     pub v: [f32; 2],
-}
-
-/// `floor(v)` as i32 without a libm call (baseline x86-64 has no SSE4.1 `roundss`); exact for
-/// every finite `v` within the i32 range (offsets are at most 1e5 px·m / 1 mm).
-#[inline(always)]
-fn floor_i32(v: f32) -> i32 {
-    let t = v as i32;
-    t - ((t as f32) > v) as i32
-}
-
-#[inline(always)]
-fn probe(img: &ImageRef<'_>, x: i32, y: i32, off: [f32; 2], inv: f32) -> f32 {
-    let px = x + floor_i32(off[0] * inv + 0.5);
-    let py = y + floor_i32(off[1] * inv + 0.5);
-    let d = img.get(px, py);
-    if d == 0 {
-        BACKGROUND_MM
-    } else {
-        d as f32
-    }
 }
 
 impl Feature {
@@ -187,14 +168,5 @@ mod tests {
         };
         assert_eq!(f.eval(&s, &p), 1500.0 - 2000.0);
         assert_eq!(PartGeom::new(&s, &p).eval(&f), f.eval(&s, &p));
-    }
-
-    #[test]
-    fn floor_matches_std() {
-        for v in [
-            -3.5f32, -3.0, -2.9, -0.5, -0.0, 0.0, 0.49, 0.5, 1.0, 2.5, 1e5, -1e5, 123456.7,
-        ] {
-            assert_eq!(floor_i32(v), v.floor() as i32, "{v}");
-        }
     }
 }

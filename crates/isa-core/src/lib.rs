@@ -4,9 +4,18 @@
 //!
 //! The crate is pure Rust; `isa-py` binds it to Python and `isa-cli` wraps it as a binary.
 //!
-//! Module map: [`depth`] (image store, part sampling), [`features`] (Eq. 5),
-//! [`criterion`] (Q1/Q2/Q3, Eq. 9-11), [`splitter`] (split search), [`tree`] (builder, leaf
-//! votes), [`forest`] (training, traversal API for voting), [`model_io`] (model files).
+//! Module map, in data-flow order:
+//! * training data: [`depth`] (image store, part sampling), [`trainset_io`] (training-set files);
+//! * the split function: [`features`] (Eq. 5) and its depth probe (`probe`: scalar and AVX2);
+//! * training: [`criterion`] (Q1/Q2/Q3, Eq. 9-11), [`splitter`] (split search: binning,
+//!   accumulation, the search loop), [`tree`] (builder, leaf votes), [`forest`] (training, the
+//!   traversal API, and `forest::flat`: the fast inference traversal kept with the forest);
+//! * inference: [`vote`] (whole-image voting in `vote::predict`, then mode finding: grid,
+//!   gather, position modes, NMS, rotation modes);
+//! * shared: [`rotation`] (quaternions and matrices on nalgebra), [`rng`] (seeding),
+//!   [`params`] (forest parameters), [`model_io`] (model files), [`error`].
+//!
+//! Dependencies run one way: `vote` uses `forest`, `forest` never uses `vote`.
 
 pub mod criterion;
 pub mod depth;
@@ -15,7 +24,9 @@ pub mod features;
 pub mod forest;
 pub mod model_io;
 pub mod params;
+pub(crate) mod probe;
 pub mod rng;
+pub mod rotation;
 pub mod splitter;
 pub mod trainset_io;
 pub mod tree;

@@ -29,6 +29,7 @@ use crate::depth::{DepthStore, Part};
 use crate::features::{CandidateSoa, Feature, PartGeom};
 use crate::params::ForestParams;
 use crate::rng::mix;
+use crate::rotation::{angle_sq_approx, unit_w_positive};
 use crate::splitter::{bins_row, score_bins, BinMatrix, NodeData, Thresholds};
 
 /// A node of the flat array. Split: `f < threshold` goes to `child`, otherwise `child + 1`.
@@ -377,37 +378,6 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
     t
 }
 
-#[inline]
-fn quat_norm(q: &[f32]) -> [f32; 4] {
-    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    let s = if q[0] < 0.0 { -1.0 / n } else { 1.0 / n };
-    [q[0] * s, q[1] * s, q[2] * s, q[3] * s]
-}
-
-/// A quaternion normalised with w ≥ 0 (as stored in votes).
-pub fn quat_angle_ref(q: &[f32]) -> [f32; 4] {
-    quat_norm(q)
-}
-
-/// Angle (radians) between two unit quaternions' rotations.
-#[inline]
-pub fn quat_angle(a: &[f32; 4], b: &[f32; 4]) -> f32 {
-    let dot = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3])
-        .abs()
-        .min(1.0);
-    2.0 * dot.acos()
-}
-
-/// `8 (1 − |q_a · q_b|)`: the squared rotation angle to second order (exact as the angle goes to
-/// 0, 8/π² ≈ 0.81 of it at 180°), without a transcendental function.
-#[inline]
-pub fn quat_angle_sq_approx(a: &[f32; 4], b: &[f32; 4]) -> f32 {
-    let dot = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3])
-        .abs()
-        .min(1.0);
-    8.0 * (1.0 - dot)
-}
-
 /// Compresses the votes of the parts `idx` into at most `leaf_modes` weighted modes.
 pub fn leaf_modes(idx: &[u32], offsets: &[f32], rotations: &[f32], p: &ForestParams) -> Vec<Vote> {
     if idx.is_empty() {
@@ -421,7 +391,7 @@ pub fn leaf_modes(idx: &[u32], offsets: &[f32], rotations: &[f32], p: &ForestPar
         .collect();
     let q: Vec<[f32; 4]> = pts
         .iter()
-        .map(|&k| quat_norm(&rotations[4 * k..4 * k + 4]))
+        .map(|&k| unit_w_positive(&rotations[4 * k..4 * k + 4]))
         .collect();
     let (ihx2, iht2) = (
         1.0 / (p.vote_bandwidth_offset * p.vote_bandwidth_offset),
@@ -433,7 +403,7 @@ pub fn leaf_modes(idx: &[u32], offsets: &[f32], rotations: &[f32], p: &ForestPar
             let dx = (off[i][0] - off[j][0]).powi(2)
                 + (off[i][1] - off[j][1]).powi(2)
                 + (off[i][2] - off[j][2]).powi(2);
-            let v = dx * ihx2 + quat_angle_sq_approx(&q[i], &q[j]) * iht2;
+            let v = dx * ihx2 + angle_sq_approx(&q[i], &q[j]) * iht2;
             d2[i * n + j] = v;
             d2[j * n + i] = v;
         }
@@ -483,7 +453,7 @@ pub fn leaf_modes(idx: &[u32], offsets: &[f32], rotations: &[f32], p: &ForestPar
         } else {
             [1.0, 0.0, 0.0, 0.0]
         };
-        let rq = quat_norm(&[rq[0] as f32, rq[1] as f32, rq[2] as f32, rq[3] as f32]);
+        let rq = unit_w_positive(&[rq[0] as f32, rq[1] as f32, rq[2] as f32, rq[3] as f32]);
         votes.push(Vote {
             weight: cnt as f32 / n as f32,
             offset: [

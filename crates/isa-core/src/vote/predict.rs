@@ -6,22 +6,24 @@
 //!
 //! Traversal runs in parallel over fixed blocks of parts (trees outer, parts inner inside a block,
 //! so a tree's top levels stay in cache; 16 parts walk a tree at once with AVX2 gathers when the
-//! CPU has them, see `traverse.rs`, else the portable `leaves_batched`); a second pass writes
+//! CPU has them, see `forest/flat.rs`, else the portable `leaves_batched`); a second pass writes
 //! each chunk's votes into its place in the output, so the votes and the hypotheses do not
 //! depend on the number of threads (nor on which traversal ran: both take the same decisions).
+//!
+//! (Over 600 lines: the second half is its tests, which train and traverse a small forest on
+//! the synthetic chair.)
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{find_modes_valid, Hypothesis, PoseVote, VoteParams};
-use crate::depth::{sample_parts, DepthStore, ImageRef, Part};
+use crate::depth::{sample_parts, DepthStore, Part};
 use crate::error::{IsaError, Result};
-use crate::features::BACKGROUND_MM;
+use crate::forest::flat::leaves_batched;
+#[cfg(test)]
+use crate::forest::flat::FlatTree;
 use crate::forest::Forest;
 use crate::tree::Tree;
-
-#[cfg(test)]
-use super::traverse::FlatTree;
 
 /// Pinhole intrinsics (pixels), OpenCV convention: pixel centres at integer `(u, v)`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -217,78 +219,6 @@ fn parts_of(depth: &DepthImage<'_>, params: &PredictParams) -> Result<(DepthStor
         });
     }
     Ok((store, parts))
-}
-
-/// Parts traversed together: their independent paths overlap in the CPU (memory latency and
-/// mispredicted branches of one hide behind the others).
-const LANES: usize = 16;
-
-/// Leaf of every part `(u, v, depth mm > 0)` in `tree`: the same decisions as
-/// [`Tree::leaf_of`](crate::tree::Tree::leaf_of) (the arithmetic of `Feature::eval_at`, with
-/// `1000 / depth` once per part; `f < threshold` goes to `child`; a test checks equality),
-/// traversed [`LANES`] parts at a time with branch-free child selection.
-pub(crate) fn leaves_batched(
-    tree: &Tree,
-    img: &ImageRef<'_>,
-    parts: &[(i32, i32, u16)],
-    out: &mut [u32],
-) {
-    let nodes = &tree.nodes;
-    let (w, h) = (img.width, img.height);
-    // One probe as `Feature::eval_at` does it: pixel w + floor(off * inv + 0.5) per axis (f32),
-    // depth there or BACKGROUND_MM outside the image / on missing depth. The conversion is
-    // unchecked after clamping to ±1e9 (any clamped probe is outside the image either way).
-    #[inline(always)]
-    fn floor_i32(v: f32) -> i32 {
-        let v = v.clamp(-1e9, 1e9);
-        // SAFETY: finite (clamped; NaN cannot arise from finite offsets and inv) and in range.
-        let t: i32 = unsafe { v.to_int_unchecked() };
-        t - i32::from((t as f32) > v)
-    }
-    let probe = |x: i32, y: i32, off: [f32; 2], inv: f32| -> f32 {
-        let px = x + floor_i32(off[0] * inv + 0.5);
-        let py = y + floor_i32(off[1] * inv + 0.5);
-        if (px as u32) < (w as u32) && (py as u32) < (h as u32) {
-            // SAFETY: bounds checked; data.len() == width * height.
-            let d = unsafe { *img.data.get_unchecked((py * w + px) as usize) };
-            if d == 0 {
-                BACKGROUND_MM
-            } else {
-                f32::from(d)
-            }
-        } else {
-            BACKGROUND_MM
-        }
-    };
-    for (group, out_group) in parts.chunks(LANES).zip(out.chunks_mut(LANES)) {
-        let mut idx = [0u32; LANES];
-        let mut inv = [0.0f32; LANES];
-        for (k, &(_, _, d)) in group.iter().enumerate() {
-            inv[k] = 1000.0f32 / f32::from(d.max(1));
-        }
-        loop {
-            let mut moved = false;
-            for (k, &(u, v, d)) in group.iter().enumerate() {
-                let nd = &nodes[idx[k] as usize];
-                if nd.is_leaf {
-                    continue;
-                }
-                moved = true;
-                let f = if d == 0 {
-                    0.0
-                } else {
-                    probe(u, v, nd.feature.u, inv[k]) - probe(u, v, nd.feature.v, inv[k])
-                };
-                idx[k] = nd.child + u32::from(f >= nd.threshold);
-            }
-            if !moved {
-                break;
-            }
-        }
-        for (o, &i) in out_group.iter_mut().zip(&idx) {
-            *o = nodes[i as usize].child;
-        }
-    }
 }
 
 /// Parts traversed together per tree (several vote chunks of [`CHUNK`] parts: a long run keeps

@@ -12,6 +12,8 @@
 //! quaternion w, x, y, z, w ≥ 0); `weight` is the mode's share of its leaf. Eq. 13 averages over
 //! trees: divide accumulated weights by `n_trees()`.
 
+pub(crate) mod flat;
+
 use rand::seq::index::sample;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -50,7 +52,7 @@ pub struct Forest {
     /// Version of the crate that trained (or wrote) this forest.
     pub crate_version: String,
     /// The trees prepared for fast inference (built on the first prediction).
-    pub(crate) flat: crate::vote::traverse::FlatCache,
+    pub(crate) flat: flat::FlatCache,
 }
 
 /// Runs `f` on a pool of `n_threads` threads, or on rayon's global pool when `None`.
@@ -287,9 +289,9 @@ pub(crate) mod tests {
             let v = f.leaf_votes(0, row[0] as usize)[0];
             let e = ((v.offset[0] - off[3 * p]).powi(2) + (v.offset[1] - off[3 * p + 1]).powi(2))
                 .sqrt();
-            let a = crate::tree::quat_angle(
-                &v.rotation,
-                &crate::tree::quat_angle_ref(&rot[4 * p..4 * p + 4]),
+            let a = crate::rotation::quat_angle(
+                v.rotation.map(f64::from),
+                std::array::from_fn(|k| f64::from(rot[4 * p + k])),
             );
             if e < 0.03 && a < 0.1 {
                 good += 1;

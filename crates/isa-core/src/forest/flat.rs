@@ -4,10 +4,10 @@
 //! depths), a part that reaches a leaf being replaced in its lane by the next part, so every lane
 //! stays busy until the last parts. The decisions are those of
 //! [`Tree::leaf_of`](crate::tree::Tree::leaf_of) (same f32 arithmetic, same rounding, same
-//! background rule); without AVX2 the portable [`leaves_batched`](super::predict::leaves_batched)
-//! runs instead. Tests check both paths against each other and against `leaf_of`.
+//! background rule); without AVX2 the portable [`leaves_batched`] runs instead. Tests check both paths against each other and against `leaf_of`.
 
 use crate::depth::ImageRef;
+use crate::probe::probe;
 use crate::tree::Tree;
 
 /// A split node: probe offsets `u = (ux, uy)`, `v = (vx, vy)` (pixel·metres), threshold, and
@@ -167,6 +167,53 @@ impl FlatTree {
     }
 }
 
+/// Parts traversed together: their independent paths overlap in the CPU (memory latency and
+/// mispredicted branches of one hide behind the others).
+const LANES: usize = 16;
+
+/// Leaf of every part `(u, v, depth mm > 0)` in `tree` (the portable twin of
+/// [`FlatTree::leaves`]): the same decisions as
+/// [`Tree::leaf_of`](crate::tree::Tree::leaf_of) (the arithmetic of `Feature::eval_at`, with
+/// `1000 / depth` once per part; `f < threshold` goes to `child`; a test checks equality),
+/// traversed [`LANES`] parts at a time with branch-free child selection.
+pub(crate) fn leaves_batched(
+    tree: &Tree,
+    img: &ImageRef<'_>,
+    parts: &[(i32, i32, u16)],
+    out: &mut [u32],
+) {
+    let nodes = &tree.nodes;
+    for (group, out_group) in parts.chunks(LANES).zip(out.chunks_mut(LANES)) {
+        let mut idx = [0u32; LANES];
+        let mut inv = [0.0f32; LANES];
+        for (k, &(_, _, d)) in group.iter().enumerate() {
+            inv[k] = 1000.0f32 / f32::from(d.max(1));
+        }
+        loop {
+            let mut moved = false;
+            for (k, &(u, v, d)) in group.iter().enumerate() {
+                let nd = &nodes[idx[k] as usize];
+                if nd.is_leaf {
+                    continue;
+                }
+                moved = true;
+                let f = if d == 0 {
+                    0.0
+                } else {
+                    probe(img, u, v, nd.feature.u, inv[k]) - probe(img, u, v, nd.feature.v, inv[k])
+                };
+                idx[k] = nd.child + u32::from(f >= nd.threshold);
+            }
+            if !moved {
+                break;
+            }
+        }
+        for (o, &i) in out_group.iter_mut().zip(&idx) {
+            *o = nodes[i as usize].child;
+        }
+    }
+}
+
 /// Lanes: two vectors of 8, walked in the same loop iteration (independent dependency chains,
 /// so the gathers of one overlap the arithmetic of the other).
 #[cfg(target_arch = "x86_64")]
@@ -218,35 +265,9 @@ unsafe fn leaves_avx2(
     }
     let fbase = nodes.as_ptr() as *const f32;
     let ibase = nodes.as_ptr() as *const i32;
-    let dbase = img.data.as_ptr() as *const i32;
-    let half = _mm256_set1_ps(0.5);
-    let (w, h) = (_mm256_set1_epi32(img.width), _mm256_set1_epi32(img.height));
-    let minus1 = _mm256_set1_epi32(-1);
-    let zero = _mm256_setzero_si256();
-    let lo16 = _mm256_set1_epi32(0xFFFF);
-    let bg = _mm256_set1_ps(crate::features::BACKGROUND_MM);
-    // Depth at `(x + floor(ox * inv + 0.5), y + floor(oy * inv + 0.5))`, or BACKGROUND_MM
-    // outside the image / on missing depth (`Feature::eval_at`; a float beyond the i32 range
-    // converts to i32::MIN, outside the image like the scalar path's clamped value).
+    let p8 = crate::probe::Probe8::new(img);
     let probe = |x: __m256i, y: __m256i, inv: __m256, ox: __m256, oy: __m256| -> __m256 {
-        let qx = _mm256_add_epi32(
-            x,
-            _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(_mm256_mul_ps(ox, inv), half))),
-        );
-        let qy = _mm256_add_epi32(
-            y,
-            _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(_mm256_mul_ps(oy, inv), half))),
-        );
-        let inside = _mm256_and_si256(
-            _mm256_and_si256(_mm256_cmpgt_epi32(w, qx), _mm256_cmpgt_epi32(qx, minus1)),
-            _mm256_and_si256(_mm256_cmpgt_epi32(h, qy), _mm256_cmpgt_epi32(qy, minus1)),
-        );
-        let idx = _mm256_and_si256(_mm256_add_epi32(_mm256_mullo_epi32(qy, w), qx), inside);
-        // 32-bit gathers at byte offset 2 * idx: the low half is the pixel.
-        let raw = _mm256_mask_i32gather_epi32::<2>(zero, dbase, idx, inside);
-        let d = _mm256_and_si256(raw, lo16);
-        let missing = _mm256_castsi256_ps(_mm256_cmpeq_epi32(d, zero));
-        _mm256_blendv_ps(_mm256_cvtepi32_ps(d), bg, missing)
+        p8.depth(x, y, inv, ox, oy)
     };
     while active != 0 {
         let mut reached = [0u32; VECS];
