@@ -6,13 +6,16 @@
 //!
 //! Module map: [`depth`] (image store, part sampling), [`features`] (Eq. 5),
 //! [`criterion`] (Q1/Q2/Q3, Eq. 9-11), [`splitter`] (split search), [`tree`] (builder, leaf
-//! votes), [`forest`] (training, traversal API for voting), [`model_io`] (model files).
+//! votes), [`forest`] (training, traversal API for voting), [`params`] (every parameter set, validated
+//! once, one JSON overlay), [`metadata`] (what a model says about itself), [`model_io`] (model
+//! files).
 
 pub mod criterion;
 pub mod depth;
 pub mod error;
 pub mod features;
 pub mod forest;
+pub mod metadata;
 pub mod model_io;
 pub mod params;
 pub mod rng;
@@ -25,7 +28,8 @@ pub use depth::{sample_parts, DepthStore, Part};
 pub use error::{IsaError, Result};
 pub use features::{Feature, BACKGROUND_MM};
 pub use forest::{Forest, PartVote, TrainingSet};
-pub use params::{ForestParams, Quality};
+pub use metadata::ModelMetadata;
+pub use params::{ForestParams, PredictParams, Quality, Valid, VoteParams};
 pub use tree::{Tree, Vote};
 
 /// Version of this crate, written into every model file.
