@@ -152,6 +152,8 @@ impl CameraFile {
     }
 
     /// Intrinsics, expected size and depth scale of image `id`.
+    // A plain tuple: its two callers destructure it at once.
+    #[allow(clippy::type_complexity)]
     pub fn for_image(
         &self,
         id: Option<u64>,

@@ -13,7 +13,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use isa_core::vote::{self as core_vote, DepthImage, Intrinsics, PoseVote};
-use isa_core::{PredictParams, VoteParams};
+use isa_core::{PredictParams, Valid, VoteParams};
 
 use crate::arrays::{array, as_slice, check_finite, describe, given, rows, vector};
 use crate::errors::{input_err, param_err, to_py};
@@ -120,6 +120,38 @@ fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<usize>) -> PyResul
     }
 }
 
+/// What one whole-image call needs, converted and checked: threads, parameters (the model's
+/// defaults overlaid by the keyword arguments), intrinsics, depth in mm with its size.
+struct ImageCall {
+    threads: Option<usize>,
+    params: Valid<PredictParams>,
+    k: Intrinsics,
+    px: Vec<u16>,
+    width: usize,
+    height: usize,
+}
+
+fn image_call(
+    forest: &Bound<'_, PyForest>,
+    depth: &Bound<'_, PyAny>,
+    k: &Bound<'_, PyAny>,
+    n_threads: Option<usize>,
+    params: Option<&Bound<'_, PyDict>>,
+) -> PyResult<ImageCall> {
+    let threads = threads_of(forest, n_threads)?;
+    let params = predict_params(&forest.borrow().core()?.predict_defaults, params)?;
+    let k = intrinsics(k)?;
+    let (px, width, height) = depth_mm(depth)?;
+    Ok(ImageCall {
+        threads,
+        params,
+        k,
+        px,
+        width,
+        height,
+    })
+}
+
 /// Ranked hypotheses of `forest` on a whole depth image, with the model's inference defaults
 /// overlaid by `params` (shared by `Forest.predict` and `predict`).
 pub fn predict_with<'py>(
@@ -130,16 +162,15 @@ pub fn predict_with<'py>(
     params: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyList>> {
     let py = forest.py();
-    let threads = threads_of(forest, n_threads)?;
+    let c = image_call(forest, depth, k, n_threads, params)?;
     let fref = forest.borrow();
     let f = fref.core()?;
-    let p = predict_params(&f.predict_defaults, params)?;
-    let k = intrinsics(k)?;
-    let (px, w, h) = depth_mm(depth)?;
     let hyps = py
         .detach(|| {
-            let img = DepthImage::new(&px, w, h)?;
-            isa_core::forest::with_threads(threads, || core_vote::predict(f, &img, &k, &p))?
+            let img = DepthImage::new(&c.px, c.width, c.height)?;
+            isa_core::forest::with_threads(c.threads, || {
+                core_vote::predict(f, &img, &c.k, &c.params)
+            })?
         })
         .map_err(to_py)?;
     hypothesis::to_list(py, hyps)
@@ -154,16 +185,15 @@ pub fn image_votes_with<'py>(
     params: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = forest.py();
-    let threads = threads_of(forest, n_threads)?;
+    let c = image_call(forest, depth, k, n_threads, params)?;
     let fref = forest.borrow();
     let f = fref.core()?;
-    let p = predict_params(&f.predict_defaults, params)?;
-    let k = intrinsics(k)?;
-    let (px, w, h) = depth_mm(depth)?;
     let iv = py
         .detach(|| {
-            let img = DepthImage::new(&px, w, h)?;
-            isa_core::forest::with_threads(threads, || core_vote::image_votes(f, &img, &k, &p))?
+            let img = DepthImage::new(&c.px, c.width, c.height)?;
+            isa_core::forest::with_threads(c.threads, || {
+                core_vote::image_votes(f, &img, &c.k, &c.params)
+            })?
         })
         .map_err(to_py)?;
     let d = PyDict::new(py);
