@@ -6,7 +6,7 @@ features with 16 thresholds each, targets = SSC offsets (3), rotations (4), 18 l
 11 nodes (33 node offsets), i.e. the 76-dimensional regression target of the paper's chair
 forest. It times
 
-* ``rust``: ``isa._core.split_search`` (the forest's own split search), for Q1 and for
+* ``rust``: ``isa._testing.split_search`` (the forest's own split search), for Q1 and for
   Q1+Q2+Q3 with the full 36 + 33 privileged dimensions and with ``reduce_dims`` components;
 * ``numpy``: the same search written carefully in NumPy, the faster of two strategies: (a)
   per-part statistics precomputed once, bins by ``searchsorted``, per-bin sums of a batch of
@@ -49,6 +49,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from isa import _core
+from isa._core import _testing
 
 N_LINKS, N_NODES, K = 18, 11, 16
 
@@ -151,7 +152,7 @@ def block_dims(dims):
 def numpy_split_search(features, targets, dims, reg=1e-4, seed=0, batch=8, dtype=np.float32):
     """Best (gain, candidate, threshold) over all candidates x 16 thresholds.
 
-    ``targets`` are the criterion's target vectors (``_core.criterion_targets``), ``dims`` the
+    ``targets`` are the criterion's target vectors (``_testing.criterion_targets``), ``dims`` the
     block sizes [3, 6, (links), (nodes)]; Q1 = logaddexp of the first two blocks' log-dets.
     Per-part statistics ``z = [1, x, upper(x x^T) per block]`` are precomputed once; per batch of
     candidates one BLAS product ``onehot(bins) @ z`` gives the per-bin sums (in ``dtype``:
@@ -293,13 +294,13 @@ def bench_split(args):
         # Rust: one untimed warm-up call (thread pool start, first touch of the allocator's
         # pages), then the best of 3 calls (the NumPy row is the best of its 2-4 runs).
         def rust(**kw):
-            runs = [_core.split_search(feats, off, rot, a, s, quality=q, n_thresholds=K, reduce_dims=rd, seed=1, **kw)
+            runs = [_testing.split_search(feats, off, rot, a, s, quality=q, n_thresholds=K, reduce_dims=rd, seed=1, **kw)
                     for _ in range(4)][1:]
             return min(runs, key=lambda x: x["seconds"])
         r = rust()
         t_rust = r["seconds"]
         r1 = rust(n_threads=1)
-        tg, dims = _core.criterion_targets(off, rot, a, s, reduce_dims=rd)
+        tg, dims = _testing.criterion_targets(off, rot, a, s, reduce_dims=rd)
         # The faster of the two NumPy strategies (one-hot GEMM is hopeless for full a, s), with
         # the faster BLAS thread count (a second OpenBLAS thread busy-waits: on a loaded 2-core
         # machine it made the tall-skinny products up to 10x slower).
@@ -417,10 +418,10 @@ def bench_reduction_effect(args):
         full = None
         res = {}
         for k in ks:
-            r = _core.split_search(feats, a, b, c, d, quality="Q1+Q2+Q3", reduce_dims=k, min_samples_leaf=5, seed=t)
+            r = _testing.split_search(feats, a, b, c, d, quality="Q1+Q2+Q3", reduce_dims=k, min_samples_leaf=5, seed=t)
             times[k] += r["seconds"]
             mask = feats[:, r["candidate"]] < r["threshold"]
-            g = _core.criterion_gains(a, b, c, d, mask, reduce_dims=0)
+            g = _testing.criterion_gains(a, b, c, d, mask, reduce_dims=0)
             res[k] = (r["candidate"], r["threshold"], g["Q1"] + g["Q2"] + g["Q3"], g["Q1"])
         full = res[0]
         for k in ks:

@@ -142,7 +142,7 @@ fn traversal(c: &mut Criterion) {
                 node_offsets: None,
             },
         };
-        Forest::fit(&params, &data, "{}", None).unwrap()
+        Forest::fit(&params.clone().check().unwrap(), &data, Default::default(), None).unwrap()
     };
     group.throughput(Throughput::Elements(n as u64));
     group.bench_function("10_trees", |b| {

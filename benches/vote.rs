@@ -104,15 +104,11 @@ fn chair_forest() -> Forest {
         link_angles: None,
         node_offsets: None,
     };
-    Forest::fit(
-        &params,
-        &TrainingSet {
+    Forest::fit(&params.clone().check().unwrap(), &TrainingSet {
             store: &store,
             parts: &parts,
             targets,
-        },
-        "{}",
-        None,
+        }, Default::default(), None,
     )
     .unwrap()
 }

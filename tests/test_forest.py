@@ -143,7 +143,11 @@ def test_save_load_roundtrip_and_metadata(toy_forest, tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["toy.isa"]  # atomic: no temporary left
     g = Forest.load(path)
     assert g == f and g.params == f.params
-    assert g.metadata == {"category": "toy", "ssc": [0, 0, 0]}
+    meta = dict(g.metadata)
+    # Training adds the counts of its data to what the trainer gave.
+    assert meta.pop("training") == {"n_parts": len(parts), "n_images": len(images), "link_angle_dims": 0,
+                                    "node_offset_dims": 0}
+    assert meta == {"category": "toy", "ssc": [0, 0, 0]}
     np.testing.assert_array_equal(g.apply(images, parts), f.apply(images, parts))
     assert g.core.crate_version == _core.__version__
 
@@ -184,6 +188,10 @@ def test_corrupt_model_files(toy_forest, tmp_path):
     assert "magic" in str(pytest.raises(ModelFormatError, Forest.from_bytes, cases["foreign"]).value)
     with pytest.raises(IsaIOError):
         Forest.load(tmp_path / "missing.isa")
+    with pytest.raises(FileNotFoundError):  # also the builtins
+        Forest.load(tmp_path / "missing.isa")
+    with pytest.raises(ValueError):
+        Forest.from_bytes(b"")
     with pytest.raises(IsaIOError):
         f.save(tmp_path / "no" / "such" / "dir" / "m.isa")
     assert issubclass(ModelFormatError, IsaError) and issubclass(IsaIOError, IsaError)
@@ -237,3 +245,86 @@ def test_default_params_match_the_core():
     import json
 
     assert json.loads(_core.Forest().params_json) == ForestParams()._core_kwargs()
+
+
+def test_errors_are_also_the_matching_builtins(tmp_path):
+    from isa.exceptions import IsaFileNotFoundError, IsaIsADirectoryError
+
+    missing = tmp_path / "missing.isa"
+    e = pytest.raises(IsaFileNotFoundError, Forest.load, missing).value
+    assert isinstance(e, FileNotFoundError) and isinstance(e, IsaIOError) and isinstance(e, IsaError)
+    assert e.errno == 2 and e.filename == str(missing) and str(missing) in str(e)
+    e = pytest.raises(IsaIsADirectoryError, Forest.load, tmp_path).value
+    assert isinstance(e, IsADirectoryError) and e.filename == str(tmp_path)
+    for cls in (InvalidInputError, InvalidParameterError, ModelFormatError):
+        assert issubclass(cls, IsaError) and issubclass(cls, ValueError)
+    with pytest.raises(ValueError, match="n_trees"):
+        ForestParams(n_trees=0)
+
+
+def test_forest_params_defaults_are_the_cores():
+    import dataclasses
+
+    fields = {f.name: f.default for f in dataclasses.fields(ForestParams)}
+    assert fields == _core.FOREST_DEFAULTS
+    with pytest.raises(InvalidParameterError, match="keyword arguments: n_trees: invalid type"):
+        ForestParams(n_trees=2.5)
+    with pytest.raises(InvalidParameterError, match="max_offset"):
+        ForestParams(max_offset=float("nan"))
+
+
+def test_inference_defaults_are_a_typed_field_of_the_model(toy_forest):
+    f, (images, parts, off, rot) = toy_forest
+    assert f.predict_defaults == _core.PREDICT_DEFAULTS
+    g = Forest(**TOY_PARAMS).fit(images, parts, off, rot, metadata={"predict_defaults": {"stride": 3}},
+                                 predict_defaults={"nms_radius": 0.5})
+    assert g.predict_defaults == {**_core.PREDICT_DEFAULTS, "stride": 3, "nms_radius": 0.5}
+    assert "predict_defaults" not in g.metadata
+    assert Forest.from_bytes(g.to_bytes()).predict_defaults == g.predict_defaults
+    assert g.to_bytes()[8:12] == _core.MODEL_FORMAT_VERSION.to_bytes(4, "little")
+    with pytest.raises(InvalidParameterError, match="predict_defaults.*strid"):
+        Forest(**TOY_PARAMS).fit(images, parts, off, rot, predict_defaults={"strid": 3})
+    with pytest.raises(InvalidParameterError, match="metadata: predict_defaults"):
+        Forest(**TOY_PARAMS).fit(images, parts, off, rot, metadata={"predict_defaults": {"stride": "a"}})
+
+
+def test_a_format_1_model_loads_and_predicts_as_the_old_code_did():
+    """``tests/data/model_v1.isa`` and what the code before format 2 predicted with it
+    (``tests/data/make_model_v1.py``): its ``predict_defaults`` metadata is read into the typed
+    field and applied by ``predict``."""
+    import json
+    import pathlib
+
+    from test_vote import K, plate
+
+    data = pathlib.Path(__file__).parent / "data"
+    expected = json.loads((data / "model_v1.json").read_text())
+    f = Forest.load(data / "model_v1.isa")
+    assert f.metadata["category"] == "plate" and "predict_defaults" not in f.metadata
+    assert {k: f.predict_defaults[k] for k in expected["predict_defaults"]} == expected["predict_defaults"]
+    depth, _ = plate(centre=tuple(expected["centre"]))
+    hyps = f.predict(depth, K)
+    assert len(hyps) == len(expected["hypotheses"])
+    for h, e in zip(hyps, expected["hypotheses"]):
+        np.testing.assert_allclose(h.R, e["R"], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(h["t"], e["t"], rtol=1e-9, atol=1e-12)
+        assert h.score == pytest.approx(e["score"], rel=1e-9) and h["support"] == e["support"]
+
+
+def test_hypotheses_are_typed_and_read_like_the_old_dicts(toy_forest):
+    from collections.abc import Mapping
+
+    from test_vote import K, plate
+
+    f = Forest.load(__import__("pathlib").Path(__file__).parent / "data" / "model_v1.isa")
+    depth, _ = plate(centre=(0.02, -0.01, 1.5))
+    h = f.predict(depth, K)[0]
+    assert isinstance(h, _core.Hypothesis) and isinstance(h, Mapping)
+    d = dict(h)
+    assert set(d) == {"R", "t", "quaternion", "score", "support", "position_score", "position_support"}
+    assert h.to_dict()["support"] == d["support"] == h.support and list(h.keys()) == list(d)
+    np.testing.assert_array_equal(h["R"], h.R)
+    assert h.get("score") == h.score and h.get("nope", 7) == 7 and "t" in h and len(h) == 7
+    with pytest.raises(KeyError):
+        h["nope"]
+    assert f.predict(depth, K, max_hypotheses=1)[0].score == h.score

@@ -5,7 +5,7 @@ the stated dtype, shape and C-contiguity, finite values; anything else raises
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -17,20 +17,69 @@ MODEL_FORMAT_VERSION: int
 #: Depth (mm) a feature probe reads outside the image or on missing depth.
 BACKGROUND_MM: float
 
+#: The core's training defaults (the fields of ``isa.forest.ForestParams``).
+FOREST_DEFAULTS: dict[str, Any]
+#: The core's inference defaults, flat keys (image-level and mode-finding).
+PREDICT_DEFAULTS: dict[str, Any]
+
 class IsaError(Exception):
     """Base class of every error raised by isa."""
 
-class InvalidInputError(IsaError):
+class InvalidInputError(IsaError, ValueError):
     """An argument has the wrong dtype, shape, layout or value (the message names it)."""
 
-class InvalidParameterError(IsaError):
+class InvalidParameterError(IsaError, ValueError):
     """A hyper-parameter failed validation (the message names it)."""
 
-class ModelFormatError(IsaError):
+class ModelFormatError(IsaError, ValueError):
     """A model file is truncated, corrupted, foreign or from a newer format version."""
 
-class IsaIOError(IsaError):
-    """An operating-system I/O failure on a named file."""
+class IsaIOError(IsaError, OSError):
+    """An operating-system I/O failure on a named file (``filename``, ``errno`` set)."""
+
+class IsaFileNotFoundError(IsaIOError, FileNotFoundError):
+    """A file that isa needs does not exist."""
+
+class IsaPermissionError(IsaIOError, PermissionError):
+    """A file cannot be read or written for lack of permission."""
+
+class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
+    """A path names a directory where isa needs a file."""
+
+class Hypothesis:
+    """A ranked 6D pose, ``X_cam = R @ X_obj + t``. Fields are attributes and also items under
+    the same names (``h["R"]``, ``h.get("score")``, ``dict(h)``), as when hypotheses were dicts;
+    registered as a ``collections.abc.Mapping``."""
+
+    @property
+    def R(self) -> npt.NDArray[np.float64]:
+        """Rotation matrix (3, 3)."""
+    @property
+    def t(self) -> npt.NDArray[np.float64]:
+        """Translation (3,), metres: the object-frame origin in the camera frame."""
+    @property
+    def quaternion(self) -> npt.NDArray[np.float64]:
+        """The rotation as (w, x, y, z), w >= 0."""
+    @property
+    def score(self) -> float:
+        """Joint kernel density of the votes at the mode (the ranking key)."""
+    @property
+    def support(self) -> int:
+        """Votes inside both kernels."""
+    @property
+    def position_score(self) -> float: ...
+    @property
+    def position_support(self) -> int: ...
+    def __getitem__(self, key: str) -> Any: ...
+    def get(self, key: str, default: Any = None) -> Any: ...
+    def __contains__(self, key: str) -> bool: ...
+    def __len__(self) -> int: ...
+    def __iter__(self) -> Iterator[str]: ...
+    def keys(self) -> list[str]: ...
+    def values(self) -> list[Any]: ...
+    def items(self) -> list[tuple[str, Any]]: ...
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a plain dict."""
 
 class Forest:
     """The ISA forest (Rust). Hyper-parameters are keyword arguments named as the fields of
@@ -51,10 +100,13 @@ class Forest:
         node_offsets: npt.NDArray[np.float32] | None = None,
         metadata: str = "{}",
         on_tree: Callable[[int], object] | None = None,
+        predict_defaults: dict[str, Any] | None = None,
     ) -> None:
         """Trains (GIL released). images: uint16 (h, w) mm; parts (P, 3) int32 [image, u, v];
         offsets (P, 3) m; rotations (P, 4) (w, x, y, z); link_angles (P, L) rad; node_offsets
-        (P, 3N); metadata: an opaque JSON string stored in the model file; on_tree(trees_done)
+        (P, 3N); metadata: a JSON object (category, centre, box, extra keys; a
+        ``predict_defaults`` key in it is read as inference defaults) stored in the model file;
+        predict_defaults: inference defaults (flat keys) overlaid on those; on_tree(trees_done)
         after each tree (its first exception is raised when training ends)."""
     def save(self, path: str | os.PathLike[str]) -> None:
         """Writes the model atomically; ``IsaIOError`` on failure."""
@@ -83,7 +135,30 @@ class Forest:
         """The training configuration as JSON."""
     @property
     def metadata(self) -> str:
-        """The opaque metadata JSON string stored with the model."""
+        """The model's metadata as a JSON object: category, centre, box, training (counts of
+        the training data), extra keys."""
+    @property
+    def predict_defaults(self) -> dict[str, Any]:
+        """The inference defaults stored in the model (flat keys), which ``predict`` starts from."""
+    def predict(
+        self,
+        depth: npt.NDArray[np.uint16] | npt.NDArray[np.float32] | npt.NDArray[np.float64],
+        K: npt.ArrayLike | Any,
+        *,
+        n_threads: int | None = None,
+        **params: Any,
+    ) -> list[Hypothesis]:
+        """Ranked 6D hypotheses of a whole depth image (see ``predict``); keyword parameters
+        (flat keys of ``PREDICT_DEFAULTS``) overlay the model's ``predict_defaults``."""
+    def image_votes(
+        self,
+        depth: npt.NDArray[np.uint16] | npt.NDArray[np.float32] | npt.NDArray[np.float64],
+        K: npt.ArrayLike | Any,
+        *,
+        n_threads: int | None = None,
+        **params: Any,
+    ) -> dict[str, Any]:
+        """Every vote ``predict`` would aggregate (see ``image_votes``)."""
     @property
     def is_fitted(self) -> bool: ...
     @property
@@ -119,55 +194,11 @@ def depth_features(
     D(w + round(u * 1000 / D_mm(w))) - D(w + round(v * 1000 / D_mm(w))) with round(x) =
     floor(x + 0.5) in float32; probes outside the image or on depth 0 read BACKGROUND_MM."""
 
-def criterion_gains(
-    offsets: npt.NDArray[np.float32],
-    rotations: npt.NDArray[np.float32],
-    link_angles: npt.NDArray[np.float32] | None,
-    node_offsets: npt.NDArray[np.float32] | None,
-    left_mask: npt.NDArray[np.bool_],
-    reg: float = 1e-4,
-    reduce_dims: int = 0,
-) -> dict[str, float]:
-    """Test hook: gains {"Q1", ["Q2"], ["Q3"]} of splitting these parts by ``left_mask``, with
-    the forest's own embedding (6D rotation, cos/sin angles), standardisation over these parts,
-    optional PCA reduction and ridge ``reg``."""
-
-def criterion_targets(
-    offsets: npt.NDArray[np.float32],
-    rotations: npt.NDArray[np.float32],
-    link_angles: npt.NDArray[np.float32] | None = None,
-    node_offsets: npt.NDArray[np.float32] | None = None,
-    reduce_dims: int = 0,
-) -> tuple[npt.NDArray[np.float32], list[int]]:
-    """The criterion's (P, D) float32 target vectors and the block sizes
-    [3 (offset), 6 (rotation), links, nodes]."""
-
-def split_search(
-    features: npt.NDArray[np.float32],
-    offsets: npt.NDArray[np.float32],
-    rotations: npt.NDArray[np.float32],
-    link_angles: npt.NDArray[np.float32] | None = None,
-    node_offsets: npt.NDArray[np.float32] | None = None,
-    *,
-    quality: str = "Q1+Q2+Q3",
-    n_thresholds: int = 16,
-    min_samples_leaf: int = 1,
-    reg: float = 1e-4,
-    reduce_dims: int = 4,
-    seed: int = 0,
-    n_threads: int | None = None,
-) -> dict[str, Any]:
-    """Benchmark hook: the forest's split search of one node holding all P parts, candidates =
-    columns of ``features`` (P, C). Returns candidate, threshold, gain, gains [Q1, Q2, Q3],
-    n_left and seconds (search only)."""
-
-# ---- Inference (crates/isa-py/src/vote.rs; owned by the inference work) --------------------
-# Keyword parameters of predict / image_votes: stride (4), min_depth (0 m), max_depth (None m),
-# min_leaf_weight (0) and the mode-finding ones shared with find_modes: position_bandwidth
-# (0.08 m), rotation_bandwidth (0.5 rad), max_hypotheses (5), nms_radius (0.25 m), max_seeds
-# (64), max_iterations (50), rotations_per_position (1), rotation_candidates (64),
-# rotation_eval_votes (1024), min_support (3), coarse_votes (32768), refine_modes (16),
-# refine_votes (4096); see isa_core::vote::VoteParams. Unknown names raise InvalidParameterError.
+# ---- Inference ------------------------------------------------------------------------------
+# Keyword parameters of predict / image_votes: the keys of PREDICT_DEFAULTS (stride, min_depth,
+# max_depth, min_leaf_weight, and the mode-finding ones shared with find_modes), overlaid on the
+# model's predict_defaults. Unknown names raise InvalidParameterError. The criterion and
+# split-search test hooks live in the private submodule ``isa._core._testing``.
 
 #: Version of the training-set (.isat) file format written by ``write_trainset``.
 TRAINSET_FORMAT_VERSION: int
@@ -179,12 +210,13 @@ def predict(
     *,
     n_threads: int | None = None,
     **params: Any,
-) -> list[dict[str, Any]]:
+) -> list[Hypothesis]:
     """Ranked 6D pose hypotheses of the objects in a whole depth image (paper Eq. 12-13): parts
     on a ``stride`` grid of valid pixels go down every tree, each leaf vote (part's 3D point +
     offset, rotation, weight / n_trees) is accumulated, modes are found by mean-shift in 3D then
     on SO(3). ``forest``: ``_core.Forest`` or ``isa.forest.Forest``; ``depth`` (H, W) uint16 mm or
     float metres (0 = missing); ``K`` a 3x3 matrix, (fx, fy, cx, cy) or ``isa.camera.Intrinsics``.
+    Parameters not given come from the model's ``predict_defaults``.
     Each hypothesis, best first: ``R`` (3, 3), ``t`` (3,) metres (SSC in the camera frame,
     X_cam = R X_obj + t), ``quaternion`` (w, x, y, z; w >= 0), ``score`` (joint kernel density),
     ``support`` (votes in both kernels), ``position_score``, ``position_support``. GIL released;
@@ -209,7 +241,7 @@ def find_modes(
     *,
     n_threads: int | None = None,
     **params: Any,
-) -> list[dict[str, Any]]:
+) -> list[Hypothesis]:
     """Mode finding alone on given votes: positions (V, 3), rotations (V, 4) (w, x, y, z, any
     sign), weights (V,) or None (all 1). Returns hypotheses as ``predict``."""
 

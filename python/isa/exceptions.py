@@ -1,20 +1,23 @@
 """Errors raised by isa.
 
 ``IsaError`` is the base class of every isa error. It is defined in the Rust extension
-(``isa._core.IsaError``) so that the core's errors and the Python-side ones share it:
+(``isa._core.IsaError``) so that the core's errors and the Python-side ones share it. Each
+class is also the matching builtin, so ``except ValueError`` / ``except OSError`` catch them:
 
-* ``InvalidInputError`` — an argument has the wrong dtype, shape, layout or value;
-* ``InvalidParameterError`` — a hyper-parameter failed validation;
-* ``ModelFormatError`` — a model file is truncated, corrupted, foreign or newer;
-* ``IsaIOError`` — an operating-system I/O failure on a named file;
-* ``DataError`` (Python side) — a data file or folder is empty, corrupt or in the wrong layout;
-  ``DataNotFoundError`` when it is missing (also ``FileNotFoundError``).
+* ``InvalidInputError`` (``ValueError``) — an argument has the wrong dtype, shape, layout or value;
+* ``InvalidParameterError`` (``ValueError``) — a hyper-parameter failed validation;
+* ``ModelFormatError`` (``ValueError``) — a model file is truncated, corrupted, foreign or newer;
+* ``IsaIOError`` (``OSError``) — an operating-system I/O failure on a named file (``filename``,
+  ``errno``), raised as ``IsaFileNotFoundError`` (``FileNotFoundError``), ``IsaPermissionError``
+  (``PermissionError``) or ``IsaIsADirectoryError`` (``IsADirectoryError``) when it is one;
+* ``DataError`` (``ValueError``, Python side) — a data file or folder is missing, empty, corrupt
+  or in the wrong layout.
+* ``DataNotFoundError`` (also ``FileNotFoundError``, Python side) — a data file or folder is missing.
 
 The Python side's own argument checks raise ``InvalidValueError`` / ``InvalidTypeError``
 (``InvalidInputError`` that is also ``ValueError`` / ``TypeError``), ``MissingDependencyError``
 (also ``ImportError``) for an optional dependency that is not installed, and ``UsageError`` (also
-``RuntimeError``) for an object used in a state that forbids it. Each is also the builtin that
-code written before isa had its own errors catches.
+``RuntimeError``) for an object used in a state that forbids it.
 """
 
 from __future__ import annotations
@@ -23,7 +26,10 @@ from isa._core import (
     InvalidInputError,
     InvalidParameterError,
     IsaError,
+    IsaFileNotFoundError,
     IsaIOError,
+    IsaIsADirectoryError,
+    IsaPermissionError,
     ModelFormatError,
 )
 
@@ -60,7 +66,10 @@ __all__ = [
     "InvalidTypeError",
     "InvalidValueError",
     "IsaError",
+    "IsaFileNotFoundError",
     "IsaIOError",
+    "IsaIsADirectoryError",
+    "IsaPermissionError",
     "MissingDependencyError",
     "ModelFormatError",
     "UsageError",

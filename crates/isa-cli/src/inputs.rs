@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use isa_core::vote::Intrinsics;
 
-use crate::{CliError, CliResult};
+use crate::error::{CliError, CliResult};
 
 /// A depth image in millimetres plus where it came from.
 pub struct Depth {
@@ -58,13 +58,19 @@ pub fn read_depth_png(path: &Path, scale: f64) -> CliResult<Depth> {
     })
 }
 
-fn read_json(path: &Path, what: &str) -> CliResult<serde_json::Value> {
+/// A JSON file; `what` names it in messages, `invalid` makes the error for bad JSON (an input
+/// or a parameter error, by what the file is).
+pub fn read_json(
+    path: &Path,
+    what: &str,
+    invalid: fn(String) -> CliError,
+) -> CliResult<serde_json::Value> {
     if !path.exists() {
         return Err(CliError::missing(path, what));
     }
     let text = std::fs::read_to_string(path).map_err(|e| CliError::io(path, e))?;
     serde_json::from_str(&text)
-        .map_err(|e| CliError::input(format!("{what} {}: not valid JSON: {e}", path.display())))
+        .map_err(|e| invalid(format!("{what} {}: not valid JSON: {e}", path.display())))
 }
 
 /// A camera file: BOP `scene_camera.json` (per image id: `cam_K`, `depth_scale`) or BOP
@@ -78,7 +84,7 @@ pub enum CameraFile {
 
 impl CameraFile {
     pub fn read(path: &Path) -> CliResult<CameraFile> {
-        let v = read_json(path, "camera file")?;
+        let v = read_json(path, "camera file", CliError::input)?;
         let bad = |m: String| CliError::input(format!("camera file {}: {m}", path.display()));
         let obj = v
             .as_object()
@@ -146,6 +152,8 @@ impl CameraFile {
     }
 
     /// Intrinsics, expected size and depth scale of image `id`.
+    // A plain tuple: its two callers destructure it at once.
+    #[allow(clippy::type_complexity)]
     pub fn for_image(
         &self,
         id: Option<u64>,

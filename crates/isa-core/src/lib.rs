@@ -13,7 +13,8 @@
 //! * inference: [`vote`] (whole-image voting in `vote::predict`, then mode finding: grid,
 //!   gather, position modes, NMS, rotation modes);
 //! * shared: [`rotation`] (quaternions and matrices on nalgebra), [`rng`] (seeding),
-//!   [`params`] (forest parameters), [`model_io`] (model files), [`error`].
+//!   [`params`] (every parameter set, validated once, one JSON overlay), [`metadata`] (what a
+//!   model says about itself), [`model_io`] (model files), [`error`].
 //!
 //! Dependencies run one way: `vote` uses `forest`, `forest` never uses `vote`.
 
@@ -22,6 +23,7 @@ pub mod depth;
 pub mod error;
 pub mod features;
 pub mod forest;
+pub mod metadata;
 pub mod model_io;
 pub mod params;
 pub(crate) mod probe;
@@ -36,7 +38,8 @@ pub use depth::{sample_parts, DepthStore, Part};
 pub use error::{IsaError, Result};
 pub use features::{Feature, BACKGROUND_MM};
 pub use forest::{Forest, PartVote, TrainingSet};
-pub use params::{ForestParams, Quality};
+pub use metadata::ModelMetadata;
+pub use params::{ForestParams, PredictParams, Quality, Valid, VoteParams};
 pub use tree::{Tree, Vote};
 
 /// Version of this crate, written into every model file.

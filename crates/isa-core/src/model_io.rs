@@ -11,7 +11,9 @@
 //! payload
 //!   crate version    str      (u32 length + UTF-8)
 //!   params           str      ForestParams as JSON (the training configuration)
-//!   metadata         str      opaque JSON from Python (category, SSC, skeleton, size)
+//!   metadata         str      ModelMetadata as JSON (category, origin, box, training summary,
+//!                             extra keys)
+//!   predict defaults str      PredictParams as JSON (the inference defaults; version >= 2)
 //!   n_trees          u32
 //!   per tree
 //!     n_nodes u32, then per node: is_leaf u8, child u32, threshold f32, u f32×2, v f32×2
@@ -23,6 +25,12 @@
 //! tree structure (children after their parent and in range, leaf ids in range, vote ranges
 //! monotone, finite numbers), so any byte string gives a forest or [`IsaError::ModelFormat`],
 //! never a panic. Saving writes a temporary file next to the target, syncs it and renames it.
+//!
+//! Versions: 1 had no inference-defaults field and free-form metadata JSON, in which Python's
+//! pipeline kept them as `predict_defaults` (flat keys); such files still load, their
+//! `predict_defaults` read into the typed field ([`split_metadata`], unknown keys skipped) and
+//! metadata that is not a JSON object kept as the string `extra["legacy_metadata"]`. Version 2
+//! added the field; the trees and votes are encoded as in version 1.
 
 use std::fs;
 use std::io::Write;
@@ -31,11 +39,12 @@ use std::path::Path;
 use crate::error::{IsaError, Result};
 use crate::features::Feature;
 use crate::forest::Forest;
-use crate::params::ForestParams;
+use crate::metadata::{split_metadata, ModelMetadata};
+use crate::params::{ForestParams, PredictParams};
 use crate::tree::{Node, Tree, Vote};
 
 pub const MAGIC: &[u8; 8] = b"ISAFRST\0";
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 const HEADER: usize = 32;
 const NODE_BYTES: usize = 1 + 4 + 4 + 16;
 const VOTE_BYTES: usize = 32;
@@ -66,7 +75,17 @@ pub fn encode(forest: &Forest) -> Vec<u8> {
     let mut p = Vec::new();
     put_str(&mut p, crate::VERSION);
     put_str(&mut p, &forest.params.to_json());
-    put_str(&mut p, &forest.metadata);
+    put_str(&mut p, &forest.metadata.to_json());
+    put_str(
+        &mut p,
+        &serde_json::to_string(&*forest.predict_defaults).expect("parameters serialise"),
+    );
+    encode_trees(&mut p, forest);
+    seal(FORMAT_VERSION, &p)
+}
+
+/// The trees and their votes (the same bytes in every format version).
+pub(crate) fn encode_trees(p: &mut Vec<u8>, forest: &Forest) {
     p.extend_from_slice(&(forest.trees.len() as u32).to_le_bytes());
     for t in &forest.trees {
         p.extend_from_slice(&(t.nodes.len() as u32).to_le_bytes());
@@ -74,7 +93,7 @@ pub fn encode(forest: &Forest) -> Vec<u8> {
             p.push(n.is_leaf as u8);
             p.extend_from_slice(&n.child.to_le_bytes());
             put_f32s(
-                &mut p,
+                p,
                 &[
                     n.threshold,
                     n.feature.u[0],
@@ -90,18 +109,22 @@ pub fn encode(forest: &Forest) -> Vec<u8> {
         }
         p.extend_from_slice(&(t.votes.len() as u32).to_le_bytes());
         for v in &t.votes {
-            put_f32s(&mut p, &[v.weight]);
-            put_f32s(&mut p, &v.offset);
-            put_f32s(&mut p, &v.rotation);
+            put_f32s(p, &[v.weight]);
+            put_f32s(p, &v.offset);
+            put_f32s(p, &v.rotation);
         }
     }
-    let mut out = Vec::with_capacity(HEADER + p.len());
+}
+
+/// Header (magic, `version`, length, checksum) + payload.
+pub(crate) fn seal(version: u32, payload: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER + payload.len());
     out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&version.to_le_bytes());
     out.extend_from_slice(&0u32.to_le_bytes());
-    out.extend_from_slice(&(p.len() as u64).to_le_bytes());
-    out.extend_from_slice(&fnv1a64(&p).to_le_bytes());
-    out.extend_from_slice(&p);
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&fnv1a64(payload).to_le_bytes());
+    out.extend_from_slice(payload);
     out
 }
 
@@ -159,14 +182,41 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// Parses a payload (after header checks). Exposed for fuzzing.
-pub fn decode_payload(payload: &[u8]) -> R<Forest> {
+/// Metadata and inference defaults of a version-1 file (free-form metadata JSON).
+fn legacy_metadata(raw: String) -> R<(ModelMetadata, crate::params::Valid<PredictParams>)> {
+    match split_metadata(&raw, "metadata", true) {
+        Ok(v) => Ok(v),
+        // Bad inference defaults are an error; metadata that is not an object is kept as text.
+        Err(e) if e.to_string().contains(crate::metadata::PREDICT_DEFAULTS_KEY) => {
+            Err(e.to_string())
+        }
+        Err(_) => {
+            let mut m = ModelMetadata::default();
+            m.extra.insert("legacy_metadata".into(), raw.into());
+            Ok((m, Default::default()))
+        }
+    }
+}
+
+/// Parses a payload of format `version` (after header checks). Exposed for fuzzing.
+pub fn decode_payload(payload: &[u8], version: u32) -> R<Forest> {
     let mut r = Reader { b: payload, pos: 0 };
     let crate_version = r.str("crate version")?;
     let params_json = r.str("parameters")?;
     let params = ForestParams::from_json(&params_json)
-        .map_err(|e| format!("training configuration: {e}"))?;
-    let metadata = r.str("metadata")?;
+        .map_err(|e| format!("training configuration: {e}"))?
+        .into_inner();
+    let meta_json = r.str("metadata")?;
+    let (metadata, predict_defaults) = if version < 2 {
+        legacy_metadata(meta_json)?
+    } else {
+        let m = ModelMetadata::from_json(&meta_json, "metadata").map_err(|e| e.to_string())?;
+        let d = r.str("inference defaults")?;
+        let d: PredictParams =
+            serde_json::from_str(&d).map_err(|e| format!("inference defaults: {e}"))?;
+        let d = d.check().map_err(|e| format!("inference defaults: {e}"))?;
+        (m, d)
+    };
     let n_trees = r.count(12, "trees")?;
     let mut trees = Vec::with_capacity(n_trees);
     for ti in 0..n_trees {
@@ -256,6 +306,7 @@ pub fn decode_payload(payload: &[u8]) -> R<Forest> {
         params,
         trees,
         metadata,
+        predict_defaults,
         crate_version,
         flat: Default::default(),
     })
@@ -310,7 +361,7 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
     if fnv1a64(payload) != sum {
         return Err(err("corrupted: checksum mismatch".into()));
     }
-    decode_payload(payload).map_err(|r| err(format!("corrupted: {r}")))
+    decode_payload(payload, version).map_err(|r| err(format!("corrupted: {r}")))
 }
 
 /// Writes a forest atomically (temporary file in the same folder, fsync, rename).
@@ -399,7 +450,11 @@ mod tests {
             n_candidates: 5,
             ..toy_params()
         };
-        Forest::fit(&p, &data, r#"{"category":"toy"}"#, None).unwrap()
+        let meta = ModelMetadata {
+            category: Some("toy".into()),
+            ..Default::default()
+        };
+        Forest::fit(&p.check().unwrap(), &data, meta, None).unwrap()
     }
 
     fn is_format_err(r: Result<Forest>) -> bool {
@@ -456,14 +511,68 @@ mod tests {
     }
 
     fn reseal(payload: &[u8]) -> Vec<u8> {
-        let mut out = Vec::new();
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        out.extend_from_slice(&0u32.to_le_bytes());
-        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        out.extend_from_slice(&fnv1a64(payload).to_le_bytes());
-        out.extend_from_slice(payload);
-        out
+        seal(FORMAT_VERSION, payload)
+    }
+
+    /// A file written by the code before format version 2 (`tests/data/make_model_v1.py`).
+    const V1: &[u8] = include_bytes!("../../../tests/data/model_v1.isa");
+
+    #[test]
+    fn version_1_files_load_with_their_inference_defaults() {
+        assert_eq!(u32::from_le_bytes(V1[8..12].try_into().unwrap()), 1);
+        let f = decode(V1, "v1").unwrap();
+        assert_eq!(f.metadata.category.as_deref(), Some("plate"));
+        assert_eq!(f.metadata.extra["ssc"], serde_json::json!([0.0, 0.0, 0.0]));
+        assert!(!f.metadata.extra.contains_key("predict_defaults"));
+        let d = &f.predict_defaults;
+        assert_eq!((d.stride, d.vote.position_bandwidth, d.vote.max_hypotheses), (3, 0.06, 2));
+        assert_eq!(d.vote.min_support, PredictParams::default().vote.min_support);
+        // Format 2 moves the header and the fields before the trees only: the trees' bytes are
+        // the old file's, and a rewritten file reads back the same forest.
+        let mut trees = Vec::new();
+        encode_trees(&mut trees, &f);
+        assert!(V1.ends_with(&trees));
+        let v2 = encode(&f);
+        assert_eq!(u32::from_le_bytes(v2[8..12].try_into().unwrap()), FORMAT_VERSION);
+        assert!(v2.ends_with(&trees));
+        assert_eq!(decode(&v2, "v2").unwrap(), f);
+    }
+
+    #[test]
+    fn version_1_metadata_that_is_not_an_object_is_kept_as_text() {
+        let f = small_forest();
+        for (raw, kept) in [("not json", true), ("[1, 2]", true), ("", false)] {
+            let mut p = Vec::new();
+            put_str(&mut p, "0.0.1");
+            put_str(&mut p, &f.params.to_json());
+            put_str(&mut p, raw);
+            encode_trees(&mut p, &f);
+            let g = decode(&seal(1, &p), "old").unwrap();
+            assert_eq!(g.trees, f.trees);
+            assert_eq!(g.metadata.extra.get("legacy_metadata").is_some(), kept, "{raw}");
+        }
+        // Bad inference defaults in an old file are a format error naming them.
+        let mut p = Vec::new();
+        put_str(&mut p, "0.0.1");
+        put_str(&mut p, &f.params.to_json());
+        put_str(&mut p, r#"{"predict_defaults": {"stride": 0}}"#);
+        encode_trees(&mut p, &f);
+        let e = decode(&seal(1, &p), "old").unwrap_err().to_string();
+        assert!(e.contains("predict_defaults") && e.contains("stride"), "{e}");
+    }
+
+    #[test]
+    fn inference_defaults_and_metadata_roundtrip() {
+        let mut f = small_forest();
+        let mut d = PredictParams::default();
+        d.overlay(&serde_json::json!({"stride": 2, "nms_radius": 0.5}), "t")
+            .unwrap();
+        f.predict_defaults = d.check().unwrap();
+        f.metadata.origin = Some("com".into());
+        let g = decode(&encode(&f), "x").unwrap();
+        assert_eq!(g.predict_defaults, f.predict_defaults);
+        assert_eq!(g.metadata, f.metadata);
+        assert_eq!(g.metadata.training.unwrap().n_parts, f.metadata.training.unwrap().n_parts);
     }
 
     proptest! {

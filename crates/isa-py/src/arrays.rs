@@ -1,8 +1,10 @@
-//! Strict NumPy argument checks: dtype, number of dimensions, shape, C-contiguity, finiteness.
-//! Messages name the argument, what was expected and what was given.
+//! NumPy in and out. In: strict argument checks (dtype, number of dimensions, shape,
+//! C-contiguity, finiteness) whose messages name the argument, what was expected and what was
+//! given. Out: row-major arrays from vectors or from per-row fixed-size items.
 
+use numpy::ndarray::Array2;
 use numpy::prelude::*;
-use numpy::{Element, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArray};
+use numpy::{Element, PyArray1, PyArray2, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArray};
 use pyo3::prelude::*;
 use pyo3::types::PyList;
 
@@ -103,12 +105,7 @@ pub fn depth_store(images: &Bound<'_, PyAny>) -> PyResult<DepthStore> {
         let a = array::<u16>(&img, &format!("images[{i}]"), "uint16", &[None, None])?;
         let sh = a.shape().to_vec();
         store
-            .push(
-                sh[1],
-                sh[0],
-                a.as_slice()
-                    .map_err(|e| input_err(format!("images[{i}]: {e}")))?,
-            )
+            .push(sh[1], sh[0], as_slice(&a, &format!("images[{i}]"))?)
             .map_err(crate::errors::to_py)?;
     }
     Ok(store)
@@ -117,6 +114,57 @@ pub fn depth_store(images: &Bound<'_, PyAny>) -> PyResult<DepthStore> {
 /// Copies `(P, 3)` int32 parts.
 pub fn parts(obj: &Bound<'_, PyAny>) -> PyResult<Vec<Part>> {
     let a = array::<i32>(obj, "parts", "int32", &[None, Some(3)])?;
-    let s = a.as_slice().map_err(|e| input_err(format!("parts: {e}")))?;
-    Ok(s.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    Ok(as_slice(&a, "parts")?
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect())
+}
+
+/// A checked C-contiguous float32 array of `shape` with finite values.
+pub fn f32_array<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    shape: &[Option<usize>],
+) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+    let a = array::<f32>(obj, name, "float32", shape)?;
+    let cols = a.shape().get(1).copied().unwrap_or(1);
+    check_finite(as_slice(&a, name)?, name, cols)?;
+    Ok(a)
+}
+
+/// The contiguous data of a checked array.
+pub fn as_slice<'a, T: Element>(a: &'a PyReadonlyArrayDyn<'_, T>, name: &str) -> PyResult<&'a [T]> {
+    a.as_slice().map_err(|e| input_err(format!("{name}: {e}")))
+}
+
+/// `None` for an absent or `None` optional argument.
+pub fn given<'a, 'py>(o: Option<&'a Bound<'py, PyAny>>) -> Option<&'a Bound<'py, PyAny>> {
+    o.filter(|x| !x.is_none())
+}
+
+/// A (rows, cols) array of row-major `data`.
+pub fn matrix<'py, T: Element>(
+    py: Python<'py>,
+    rows: usize,
+    cols: usize,
+    data: Vec<T>,
+) -> Bound<'py, PyArray2<T>> {
+    Array2::from_shape_vec((rows, cols), data)
+        .expect("rows * cols values")
+        .into_pyarray(py)
+}
+
+/// A (n, N) array, one row per item.
+pub fn rows<'py, T: Element + Copy, const N: usize>(
+    py: Python<'py>,
+    items: impl ExactSizeIterator<Item = [T; N]>,
+) -> Bound<'py, PyArray2<T>> {
+    let n = items.len();
+    let flat: Vec<T> = items.flatten().collect();
+    matrix(py, n, N, flat)
+}
+
+/// A 1-D array.
+pub fn vector<'py, T: Element>(py: Python<'py>, data: Vec<T>) -> Bound<'py, PyArray1<T>> {
+    PyArray1::from_vec(py, data)
 }

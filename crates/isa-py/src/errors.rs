@@ -1,70 +1,144 @@
-//! One Python exception class per `IsaError` variant, all subclassing `isa._core.IsaError`.
+//! One Python exception class per `IsaError` variant, each also the matching builtin, all
+//! subclasses of `isa._core.IsaError`:
+//!
+//! | core variant | Python class | also |
+//! |---|---|---|
+//! | `InvalidInput` | `InvalidInputError` | `ValueError` |
+//! | `InvalidParameter` | `InvalidParameterError` | `ValueError` |
+//! | `ModelFormat` | `ModelFormatError` | `ValueError` |
+//! | `Io` | `IsaIOError` | `OSError`; by error kind `IsaFileNotFoundError` (`FileNotFoundError`), `IsaPermissionError` (`PermissionError`), `IsaIsADirectoryError` (`IsADirectoryError`), with `errno` and `filename` set |
+//!
+//! The classes have two bases, which `create_exception!` cannot express, so they are defined
+//! by the Python source below when the module loads.
 
-use pyo3::create_exception;
-use pyo3::exceptions::PyException;
+use std::ffi::CStr;
+
 use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::PyType;
 
 use isa_core::IsaError as CoreError;
 
-create_exception!(
-    _core,
-    IsaError,
-    PyException,
-    "Base class of every error raised by isa."
-);
-create_exception!(
-    _core,
-    InvalidInputError,
-    IsaError,
-    "An argument has the wrong dtype, shape, layout or value (the message names it)."
-);
-create_exception!(
-    _core,
-    InvalidParameterError,
-    IsaError,
-    "A hyper-parameter failed validation (the message names it)."
-);
-create_exception!(
-    _core,
-    ModelFormatError,
-    IsaError,
-    "A model file is truncated, corrupted, foreign or from a newer format version."
-);
-create_exception!(
-    _core,
-    IsaIOError,
-    IsaError,
-    "An operating-system I/O failure on a named file."
-);
+const SOURCE: &CStr = cr#"
+class IsaError(Exception):
+    """Base class of every error raised by isa."""
+    __module__ = "isa._core"
+
+class InvalidInputError(IsaError, ValueError):
+    """An argument has the wrong dtype, shape, layout or value (the message names it)."""
+    __module__ = "isa._core"
+
+class InvalidParameterError(IsaError, ValueError):
+    """A hyper-parameter failed validation (the message names it)."""
+    __module__ = "isa._core"
+
+class ModelFormatError(IsaError, ValueError):
+    """A model file is truncated, corrupted, foreign or from a newer format version."""
+    __module__ = "isa._core"
+
+class IsaIOError(IsaError, OSError):
+    """An operating-system I/O failure on a named file (``filename``, ``errno`` set)."""
+    __module__ = "isa._core"
+
+class IsaFileNotFoundError(IsaIOError, FileNotFoundError):
+    """A file that isa needs does not exist."""
+    __module__ = "isa._core"
+
+class IsaPermissionError(IsaIOError, PermissionError):
+    """A file cannot be read or written for lack of permission."""
+    __module__ = "isa._core"
+
+class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
+    """A path names a directory where isa needs a file."""
+    __module__ = "isa._core"
+"#;
+
+/// Class names, in the order of [`Kind`].
+const NAMES: [&str; 8] = [
+    "IsaError",
+    "InvalidInputError",
+    "InvalidParameterError",
+    "ModelFormatError",
+    "IsaIOError",
+    "IsaFileNotFoundError",
+    "IsaPermissionError",
+    "IsaIsADirectoryError",
+];
+
+#[derive(Clone, Copy)]
+enum Kind {
+    Input = 1,
+    Parameter = 2,
+    Format = 3,
+    Io = 4,
+    NotFound = 5,
+    Permission = 6,
+    IsDirectory = 7,
+}
+
+static TYPES: PyOnceLock<Vec<Py<PyType>>> = PyOnceLock::new();
+
+fn types(py: Python<'_>) -> &Vec<Py<PyType>> {
+    TYPES
+        .get_or_try_init(py, || -> PyResult<Vec<Py<PyType>>> {
+            let m = PyModule::from_code(py, SOURCE, c"isa/_core/errors.py", c"isa._core._errors")?;
+            NAMES
+                .iter()
+                .map(|n| Ok(m.getattr(*n)?.cast_into::<PyType>()?.unbind()))
+                .collect()
+        })
+        .expect("the exception classes are valid Python")
+}
+
+fn new_err(kind: Kind, msg: String) -> PyErr {
+    Python::attach(|py| PyErr::from_type(types(py)[kind as usize].bind(py).clone(), msg))
+}
 
 /// Converts a core error to its Python exception.
 pub fn to_py(e: CoreError) -> PyErr {
     let msg = e.to_string();
     match e {
-        CoreError::InvalidInput(_) => InvalidInputError::new_err(msg),
-        CoreError::InvalidParameter(_) => InvalidParameterError::new_err(msg),
-        CoreError::ModelFormat { .. } => ModelFormatError::new_err(msg),
-        CoreError::Io { .. } => IsaIOError::new_err(msg),
+        CoreError::InvalidInput(_) => new_err(Kind::Input, msg),
+        CoreError::InvalidParameter(_) => new_err(Kind::Parameter, msg),
+        CoreError::ModelFormat { .. } => new_err(Kind::Format, msg),
+        CoreError::Io { path, source } => {
+            let kind = match source.kind() {
+                std::io::ErrorKind::NotFound => Kind::NotFound,
+                std::io::ErrorKind::PermissionDenied => Kind::Permission,
+                std::io::ErrorKind::IsADirectory => Kind::IsDirectory,
+                _ => Kind::Io,
+            };
+            Python::attach(|py| {
+                let ty = types(py)[kind as usize].bind(py).clone();
+                match source.raw_os_error() {
+                    // OSError(errno, strerror, filename): str() is "[Errno 2] ...: 'path'".
+                    Some(errno) => {
+                        let text = source.to_string();
+                        let strerror = text
+                            .strip_suffix(&format!(" (os error {errno})"))
+                            .unwrap_or(&text)
+                            .to_string();
+                        PyErr::from_type(ty, (errno, strerror, path))
+                    }
+                    None => PyErr::from_type(ty, (msg,)),
+                }
+            })
+        }
     }
 }
 
 pub fn input_err(msg: impl Into<String>) -> PyErr {
-    InvalidInputError::new_err(msg.into())
+    new_err(Kind::Input, msg.into())
 }
 
 pub fn param_err(msg: impl Into<String>) -> PyErr {
-    InvalidParameterError::new_err(msg.into())
+    new_err(Kind::Parameter, msg.into())
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
-    m.add("IsaError", py.get_type::<IsaError>())?;
-    m.add("InvalidInputError", py.get_type::<InvalidInputError>())?;
-    m.add(
-        "InvalidParameterError",
-        py.get_type::<InvalidParameterError>(),
-    )?;
-    m.add("ModelFormatError", py.get_type::<ModelFormatError>())?;
-    m.add("IsaIOError", py.get_type::<IsaIOError>())?;
+    for (name, ty) in NAMES.iter().zip(types(py)) {
+        m.add(*name, ty.bind(py))?;
+    }
     Ok(())
 }

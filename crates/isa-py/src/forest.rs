@@ -3,81 +3,18 @@
 use std::path::PathBuf;
 use std::sync::Mutex;
 
-use numpy::ndarray::Array2;
 use numpy::prelude::*;
 use numpy::{PyArray1, PyArray2, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict};
+use pyo3::types::{PyBytes, PyDict, PyList};
 
 use isa_core::criterion::RawTargets;
-use isa_core::{Forest, ForestParams, TrainingSet};
+use isa_core::metadata::split_metadata;
+use isa_core::{Forest, ForestParams, TrainingSet, Valid};
 
-use crate::arrays::{array, check_finite, depth_store, parts as parts_arg};
+use crate::arrays::{depth_store, f32_array, given, matrix, parts as parts_arg, rows, vector};
 use crate::errors::{input_err, param_err, to_py};
-
-/// Builds parameters from the defaults overridden by `kwargs` (unknown names are errors).
-pub fn params_from_kwargs(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<ForestParams> {
-    let mut v = serde_json::to_value(ForestParams::default()).expect("params serialise");
-    if let Some(kw) = kwargs {
-        let obj = v.as_object_mut().expect("object");
-        for (k, val) in kw.iter() {
-            let key: String = k.extract()?;
-            if !obj.contains_key(&key) {
-                let mut names: Vec<&String> = obj.keys().collect();
-                names.sort();
-                return Err(param_err(format!(
-                    "unknown forest parameter {key:?}; known: {names:?}"
-                )));
-            }
-            let j = if val.is_instance_of::<pyo3::types::PyBool>() {
-                serde_json::Value::Bool(val.extract()?)
-            } else if let Ok(i) = val.extract::<i64>() {
-                serde_json::Value::from(i)
-            } else if let Ok(f) = val.extract::<f64>() {
-                serde_json::Number::from_f64(f)
-                    .map(serde_json::Value::Number)
-                    .ok_or_else(|| param_err(format!("{key} must be finite, got {f}")))?
-            } else if let Ok(s) = val.extract::<String>() {
-                if key == "quality" {
-                    serde_json::Value::String(
-                        isa_core::Quality::parse(&s)
-                            .map_err(to_py)?
-                            .as_str()
-                            .to_string(),
-                    )
-                } else {
-                    serde_json::Value::String(s)
-                }
-            } else {
-                return Err(param_err(format!(
-                    "{key}: unsupported value {}",
-                    crate::arrays::describe(&val)
-                )));
-            };
-            obj.insert(key, j);
-        }
-    }
-    let p: ForestParams =
-        serde_json::from_value(v).map_err(|e| param_err(format!("forest parameters: {e}")))?;
-    p.validate().map_err(to_py)?;
-    Ok(p)
-}
-
-fn f32_arr<'py>(
-    obj: &Bound<'py, PyAny>,
-    name: &str,
-    shape: &[Option<usize>],
-) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
-    let a = array::<f32>(obj, name, "float32", shape)?;
-    let cols = a.shape().get(1).copied().unwrap_or(1);
-    check_finite(
-        a.as_slice()
-            .map_err(|e| input_err(format!("{name}: {e}")))?,
-        name,
-        cols,
-    )?;
-    Ok(a)
-}
+use crate::params::{forest_params, json_to_py, kwargs_json};
 
 fn slice<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> &'a [f32] {
     a.as_slice().expect("checked contiguous")
@@ -87,7 +24,7 @@ fn slice<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> &'a [f32] {
 /// (the ISA forest, paper Section 3.3).
 #[pyclass(name = "Forest", module = "isa._core")]
 pub struct PyForest {
-    params: ForestParams,
+    params: Valid<ForestParams>,
     forest: Option<Forest>,
     n_threads: Option<usize>,
 }
@@ -100,7 +37,7 @@ impl PyForest {
     }
     pub fn from_core(f: Forest) -> Self {
         PyForest {
-            params: f.params.clone(),
+            params: f.params.clone().check().expect("a forest's parameters are valid"),
             forest: Some(f),
             n_threads: None,
         }
@@ -124,16 +61,18 @@ impl PyForest {
             ));
         }
         Ok(PyForest {
-            params: params_from_kwargs(params)?,
+            params: forest_params(params)?,
             forest: None,
             n_threads,
         })
     }
 
-    /// Trains the forest (the GIL is released while training). ``on_tree(trees_done)``, if
-    /// given, is called after each tree (for a progress bar); its first exception is raised once
-    /// training ends.
-    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}", on_tree=None))]
+    /// Trains the forest (the GIL is released while training). ``metadata``: a JSON object
+    /// (category, centre, box, extra keys; a ``predict_defaults`` key in it is read as
+    /// inference defaults); ``predict_defaults``: inference defaults (flat keys), overlaid on
+    /// those. ``on_tree(trees_done)``, if given, is called after each tree (for a progress bar);
+    /// its first exception is raised once training ends.
+    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}", on_tree=None, predict_defaults=None))]
     #[allow(clippy::too_many_arguments)]
     fn fit(
         &mut self,
@@ -146,19 +85,22 @@ impl PyForest {
         node_offsets: Option<&Bound<'_, PyAny>>,
         metadata: &str,
         on_tree: Option<Py<PyAny>>,
+        predict_defaults: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<()> {
+        let (meta, defaults) = split_metadata(metadata, "metadata", false).map_err(to_py)?;
+        let defaults = defaults
+            .with_overrides(&kwargs_json(predict_defaults)?, "predict_defaults")
+            .map_err(to_py)?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
         let n = parts.len();
-        let off = f32_arr(offsets, "offsets", &[Some(n), Some(3)])?;
-        let rot = f32_arr(rotations, "rotations", &[Some(n), Some(4)])?;
-        let la = link_angles
-            .filter(|o| !o.is_none())
-            .map(|o| f32_arr(o, "link_angles", &[Some(n), None]))
+        let off = f32_array(offsets, "offsets", &[Some(n), Some(3)])?;
+        let rot = f32_array(rotations, "rotations", &[Some(n), Some(4)])?;
+        let la = given(link_angles)
+            .map(|o| f32_array(o, "link_angles", &[Some(n), None]))
             .transpose()?;
-        let no = node_offsets
-            .filter(|o| !o.is_none())
-            .map(|o| f32_arr(o, "node_offsets", &[Some(n), None]))
+        let no = given(node_offsets)
+            .map(|o| f32_array(o, "node_offsets", &[Some(n), None]))
             .transpose()?;
         let raw = RawTargets {
             offsets: slice(&off),
@@ -184,9 +126,10 @@ impl PyForest {
                     });
                 }
             };
-            Forest::fit_with_progress(&params, &data, metadata, threads, &hook)
+            Forest::fit_with_progress(&params, &data, meta, threads, &hook)
         });
-        let forest = forest.map_err(to_py)?;
+        let mut forest = forest.map_err(to_py)?;
+        forest.predict_defaults = defaults;
         if let Some(e) = hook_err.into_inner().unwrap_or_else(|p| p.into_inner()) {
             return Err(e);
         }
@@ -241,9 +184,10 @@ impl PyForest {
             self.params = ForestParams::from_json(s).map_err(to_py)?;
             self.forest = None;
         } else {
-            let f = Forest::from_bytes(state).map_err(to_py)?;
-            self.params = f.params.clone();
-            self.forest = Some(f);
+            *self = PyForest {
+                n_threads: self.n_threads,
+                ..PyForest::from_core(Forest::from_bytes(state).map_err(to_py)?)
+            };
         }
         Ok(())
     }
@@ -263,11 +207,8 @@ impl PyForest {
             .detach(|| isa_core::forest::with_threads(threads, || f.apply(&store, &parts)))
             .map_err(to_py)?
             .map_err(to_py)?;
-        let t = f.n_trees();
         let v: Vec<i32> = leaves.into_iter().map(|x| x as i32).collect();
-        Ok(Array2::from_shape_vec((parts.len(), t), v)
-            .expect("shape")
-            .into_pyarray(py))
+        Ok(matrix(py, parts.len(), f.n_trees(), v))
     }
 
     /// Every vote of every part through every tree, as a dict of flat arrays (V = number of
@@ -287,34 +228,12 @@ impl PyForest {
             .detach(|| isa_core::forest::with_threads(threads, || f.part_votes(&store, &parts)))
             .map_err(to_py)?
             .map_err(to_py)?;
-        let n = votes.len();
         let d = PyDict::new(py);
-        d.set_item(
-            "part",
-            PyArray1::from_vec(py, votes.iter().map(|v| v.part as i32).collect()),
-        )?;
-        d.set_item(
-            "tree",
-            PyArray1::from_vec(py, votes.iter().map(|v| v.tree as i32).collect()),
-        )?;
-        d.set_item(
-            "weight",
-            PyArray1::from_vec(py, votes.iter().map(|v| v.vote.weight).collect()),
-        )?;
-        let off: Vec<f32> = votes.iter().flat_map(|v| v.vote.offset).collect();
-        let rot: Vec<f32> = votes.iter().flat_map(|v| v.vote.rotation).collect();
-        d.set_item(
-            "offset",
-            Array2::from_shape_vec((n, 3), off)
-                .expect("shape")
-                .into_pyarray(py),
-        )?;
-        d.set_item(
-            "rotation",
-            Array2::from_shape_vec((n, 4), rot)
-                .expect("shape")
-                .into_pyarray(py),
-        )?;
+        d.set_item("part", vector(py, votes.iter().map(|v| v.part as i32).collect()))?;
+        d.set_item("tree", vector(py, votes.iter().map(|v| v.tree as i32).collect()))?;
+        d.set_item("weight", vector(py, votes.iter().map(|v| v.vote.weight).collect()))?;
+        d.set_item("offset", rows(py, votes.iter().map(|v| v.vote.offset)))?;
+        d.set_item("rotation", rows(py, votes.iter().map(|v| v.vote.rotation)))?;
         Ok(d)
     }
 
@@ -335,17 +254,10 @@ impl PyForest {
             return Err(input_err(format!("no leaf {leaf} in tree {tree}")));
         }
         let v = f.leaf_votes(tree, leaf);
-        let w: Vec<f32> = v.iter().map(|x| x.weight).collect();
-        let o: Vec<f32> = v.iter().flat_map(|x| x.offset).collect();
-        let r: Vec<f32> = v.iter().flat_map(|x| x.rotation).collect();
         Ok((
-            PyArray1::from_vec(py, w),
-            Array2::from_shape_vec((v.len(), 3), o)
-                .expect("shape")
-                .into_pyarray(py),
-            Array2::from_shape_vec((v.len(), 4), r)
-                .expect("shape")
-                .into_pyarray(py),
+            vector(py, v.iter().map(|x| x.weight).collect()),
+            rows(py, v.iter().map(|x| x.offset)),
+            rows(py, v.iter().map(|x| x.rotation)),
         ))
     }
 
@@ -354,9 +266,48 @@ impl PyForest {
     fn params_json(&self) -> String {
         self.params.to_json()
     }
+    /// Metadata as a JSON object (category, centre, box, training summary, extra keys).
     #[getter]
     fn metadata(&self) -> PyResult<String> {
-        Ok(self.fitted()?.metadata.clone())
+        Ok(self.fitted()?.metadata.to_json())
+    }
+    /// The inference defaults stored in the model (flat keys), which `predict` starts from.
+    #[getter]
+    fn predict_defaults<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let flat = self.fitted()?.predict_defaults.to_flat_json();
+        json_to_py(py, &serde_json::Value::Object(flat))
+    }
+
+    /// Ranked 6D pose hypotheses of the objects in a whole depth image (paper Eq. 12-13).
+    ///
+    /// `depth`: (H, W) uint16 mm or float32/float64 metres; `K`: 3x3 matrix, (fx, fy, cx, cy)
+    /// or `isa.camera.Intrinsics`. Keyword parameters (flat keys of `PREDICT_DEFAULTS`) overlay
+    /// the model's `predict_defaults`. Returns `Hypothesis` objects, best first.
+    #[pyo3(signature = (depth, K, *, n_threads=None, **params))]
+    #[allow(non_snake_case)]
+    fn predict<'py>(
+        slf: &Bound<'py, Self>,
+        depth: &Bound<'py, PyAny>,
+        K: &Bound<'py, PyAny>,
+        n_threads: Option<usize>,
+        params: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Bound<'py, PyList>> {
+        crate::predict::predict_with(slf, depth, K, n_threads, params)
+    }
+
+    /// Every vote of a whole depth image (for plots): dict of `position` (V, 3) float32 metres,
+    /// `rotation` (V, 4) float32 (w, x, y, z), `weight` (V,) float32 (leaf share / n_trees),
+    /// `pixel` (V, 2) int32 (u, v) of the casting part, `tree` (V,) int32, `n_parts` int.
+    #[pyo3(signature = (depth, K, *, n_threads=None, **params))]
+    #[allow(non_snake_case)]
+    fn image_votes<'py>(
+        slf: &Bound<'py, Self>,
+        depth: &Bound<'py, PyAny>,
+        K: &Bound<'py, PyAny>,
+        n_threads: Option<usize>,
+        params: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        crate::predict::image_votes_with(slf, depth, K, n_threads, params)
     }
     #[getter]
     fn is_fitted(&self) -> bool {

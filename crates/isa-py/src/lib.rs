@@ -1,13 +1,21 @@
 //! PyO3 binding of `isa-core`, importable as `isa._core`. This layer only converts: NumPy
-//! arrays in and out, core errors to their Python exception classes.
+//! arrays in and out (`arrays`), keyword arguments to the core's parameter overlay (`params`),
+//! core errors to their Python exception classes (`errors`). One file per domain: the forest
+//! (`forest`, with `predict` / `image_votes` methods), inference (`predict`, `hypothesis`),
+//! features (`features`), training-set files (`trainset`), and test hooks in the private
+//! submodule `isa._core._testing` (`testing`).
 
 use pyo3::prelude::*;
 
 pub mod arrays;
 pub mod errors;
+pub mod features;
 pub mod forest;
-pub mod hooks;
-pub mod vote;
+pub mod hypothesis;
+pub mod params;
+pub mod predict;
+pub mod testing;
+pub mod trainset;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -15,12 +23,13 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MODEL_FORMAT_VERSION", isa_core::model_io::FORMAT_VERSION)?;
     m.add("BACKGROUND_MM", isa_core::BACKGROUND_MM)?;
     errors::register(m)?;
+    params::register(m)?;
     m.add_class::<forest::PyForest>()?;
-    m.add_function(wrap_pyfunction!(hooks::sample_parts, m)?)?;
-    m.add_function(wrap_pyfunction!(hooks::depth_features, m)?)?;
-    m.add_function(wrap_pyfunction!(hooks::criterion_gains, m)?)?;
-    m.add_function(wrap_pyfunction!(hooks::criterion_targets, m)?)?;
-    m.add_function(wrap_pyfunction!(hooks::split_search, m)?)?;
-    vote::register(m)?; // inference: predict, image_votes, find_modes, trainset files
+    hypothesis::register(m)?;
+    m.add_function(wrap_pyfunction!(features::sample_parts, m)?)?;
+    m.add_function(wrap_pyfunction!(features::depth_features, m)?)?;
+    predict::register(m)?;
+    trainset::register(m)?;
+    m.add_submodule(&testing::submodule(m.py())?)?;
     Ok(())
 }

@@ -1,9 +1,9 @@
 """Python face of the Rust ISA forest (paper Section 3.3).
 
 ``Forest`` trains the part-based random forest on depth-image parts, saves / loads versioned
-model files, pickles, and returns the leaf votes of parts. All numerics run in Rust
-(``isa._core``) with the GIL released; this module only validates hyper-parameters and names
-them.
+model files, pickles, returns the leaf votes of parts and the 6D hypotheses of depth images.
+All numerics and every parameter check run in Rust (``isa._core``) with the GIL released; this
+module names the parameters.
 
 Data contract (see ``docs/DESIGN.md``): ``images`` is a list of uint16 2D depth crops (mm,
 0 = missing, C-contiguous); ``parts`` is (P, 3) int32 ``[image, u, v]`` on pixels with depth;
@@ -33,10 +33,15 @@ from isa.exceptions import InvalidParameterError
 
 QUALITIES = ("Q1", "Q1+Q2", "Q1+Q3", "Q1+Q2+Q3")
 
+#: The core's defaults (``isa_core::ForestParams::default``), the one place they are set.
+_D = _core.FOREST_DEFAULTS
+
 
 @dataclass(frozen=True)
 class ForestParams:
-    """Hyper-parameters of a forest (all stored in the model file).
+    """Hyper-parameters of a forest (all stored in the model file); a mirror of the core's
+    ``ForestParams``, whose defaults (``isa._core.FOREST_DEFAULTS``) and checks (names, types,
+    ranges, in messages naming the parameter) it uses.
 
     Attributes:
         n_trees: number of trees.
@@ -62,42 +67,29 @@ class ForestParams:
         seed: seed of every random choice (same seed + data = byte-identical model).
     """
 
-    n_trees: int = 10
-    max_depth: int = 20
-    min_samples_split: int = 20
-    min_samples_leaf: int = 5
-    min_gain: float = 0.0
-    n_candidates: int = 100
-    n_thresholds: int = 16
-    max_offset: float = 150.0
-    max_score_samples: int = 16384
-    quality: str = "Q1+Q2+Q3"
-    reg: float = 1e-4
-    reduce_dims: int = 4
-    bag_fraction: float = 1.0
-    leaf_modes: int = 4
-    leaf_max_points: int = 64
-    vote_bandwidth_offset: float = 0.05
-    vote_bandwidth_rotation: float = 0.35
-    seed: int = 0
+    n_trees: int = _D["n_trees"]
+    max_depth: int = _D["max_depth"]
+    min_samples_split: int = _D["min_samples_split"]
+    min_samples_leaf: int = _D["min_samples_leaf"]
+    min_gain: float = _D["min_gain"]
+    n_candidates: int = _D["n_candidates"]
+    n_thresholds: int = _D["n_thresholds"]
+    max_offset: float = _D["max_offset"]
+    max_score_samples: int = _D["max_score_samples"]
+    quality: str = _D["quality"]
+    reg: float = _D["reg"]
+    reduce_dims: int = _D["reduce_dims"]
+    bag_fraction: float = _D["bag_fraction"]
+    leaf_modes: int = _D["leaf_modes"]
+    leaf_max_points: int = _D["leaf_max_points"]
+    vote_bandwidth_offset: float = _D["vote_bandwidth_offset"]
+    vote_bandwidth_rotation: float = _D["vote_bandwidth_rotation"]
+    seed: int = _D["seed"]
 
     def __post_init__(self) -> None:
-        for name in ("n_trees", "max_depth", "min_samples_split", "min_samples_leaf", "n_candidates",
-                     "n_thresholds", "max_score_samples", "reduce_dims", "leaf_modes", "leaf_max_points", "seed"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-                raise InvalidParameterError(f"{name} must be a non-negative integer, got {v!r}")
-        for name in ("min_gain", "max_offset", "reg", "bag_fraction", "vote_bandwidth_offset",
-                     "vote_bandwidth_rotation"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v):
-                raise InvalidParameterError(f"{name} must be a finite number, got {v!r}")
-        q = str(self.quality).replace(" ", "").upper()
-        if q not in QUALITIES:
-            raise InvalidParameterError(f"quality must be one of {QUALITIES}, got {self.quality!r}")
-        object.__setattr__(self, "quality", q)
-        # Range checks (shared with the core, whose messages name the parameter).
-        _core.Forest(**self._core_kwargs())
+        # The core checks every field; "q1 + q2" comes back as "Q1+Q2".
+        checked = json.loads(_core.Forest(**self._core_kwargs()).params_json)
+        object.__setattr__(self, "quality", checked["quality"])
 
     def _core_kwargs(self) -> dict[str, Any]:
         d = asdict(self)
@@ -133,16 +125,22 @@ class Forest:
         node_offsets: np.ndarray | None = None,
         metadata: dict[str, Any] | str | None = None,
         progress: bool = False,
+        predict_defaults: dict[str, Any] | None = None,
     ) -> Forest:
         """Trains on parts (see the module docstring for the arrays) and returns ``self``.
 
-        ``metadata`` (a JSON-serialisable dict or a JSON string: category, SSC, skeleton, size...)
-        is stored verbatim in the model file. ``progress`` shows a bar that advances per tree.
+        ``metadata`` (a JSON-serialisable dict or a JSON object string) goes into the model file:
+        ``category``, ``centre`` (the object-frame origin), ``box`` (the category box) are typed
+        fields, any other key is kept as given, and training adds ``training`` (counts of the
+        data). ``predict_defaults`` (flat keys of ``isa._core.PREDICT_DEFAULTS``; or the same key
+        inside ``metadata``) become the model's inference defaults, which :meth:`predict` starts
+        from. ``progress`` shows a bar that advances per tree.
         """
         meta = _metadata_json(metadata)
         with tqdm(total=self.params.n_trees, desc="train", unit="tree", disable=not progress, leave=False) as bar:
             self._core.fit(list(images), parts, offsets, rotations, link_angles, node_offsets, meta,
-                           on_tree=(lambda done: bar.update(done - bar.n)) if progress else None)
+                           on_tree=(lambda done: bar.update(done - bar.n)) if progress else None,
+                           predict_defaults=predict_defaults)
         return self
 
     # -- files -------------------------------------------------------------------------------
@@ -190,18 +188,20 @@ class Forest:
         return self._core.leaf_votes(tree, leaf)
 
     # -- inference ---------------------------------------------------------------------------
-    def predict(self, depth: np.ndarray, intrinsics: Any, **params: Any) -> list[dict[str, Any]]:
+    def predict(self, depth: np.ndarray, intrinsics: Any, **params: Any) -> list[_core.Hypothesis]:
         """Ranked 6D hypotheses of the objects in a whole depth image (paper Eq. 12-13).
 
         ``depth``: (H, W) uint16 millimetres or float metres (0 = missing); ``intrinsics``: an
         ``isa.camera.Intrinsics``, a 3x3 matrix or (fx, fy, cx, cy). Inference parameters not given
-        come from the model's ``predict_defaults`` metadata (size-aware ones the pipeline stores),
-        then from ``isa._core.default_predict_params()``. Each hypothesis: ``R`` (3, 3), ``t`` (3,)
-        metres (the object-frame origin, SSC or centre of mass, in the camera frame),
-        ``quaternion``, ``score``, ``support`` (see ``isa._core.predict``)."""
-        meta = self.metadata
-        defaults = meta.get("predict_defaults", {}) if isinstance(meta, dict) else {}
-        return _core.predict(self._core, depth, intrinsics, **{**defaults, **params})
+        come from the model's :attr:`predict_defaults` (size-aware ones the pipeline stores; the
+        core's ``isa._core.PREDICT_DEFAULTS`` otherwise). Each :class:`isa._core.Hypothesis`:
+        ``R`` (3, 3), ``t`` (3,) metres (the object-frame origin, SSC or centre of mass, in the
+        camera frame), ``quaternion``, ``score``, ``support``; also readable as ``h["R"]``."""
+        return self._core.predict(depth, intrinsics, **params)
+
+    def image_votes(self, depth: np.ndarray, intrinsics: Any, **params: Any) -> dict[str, Any]:
+        """Every vote :meth:`predict` aggregates (for plots; see ``isa._core.image_votes``)."""
+        return self._core.image_votes(depth, intrinsics, **params)
 
     # -- properties --------------------------------------------------------------------------
     @property
@@ -209,13 +209,14 @@ class Forest:
         return self._core.is_fitted
 
     @property
-    def metadata(self) -> dict[str, Any] | str:
-        """The metadata stored with the model (parsed JSON, or the raw string if not JSON)."""
-        raw = self._core.metadata
-        try:
-            return json.loads(raw)
-        except ValueError:
-            return raw
+    def metadata(self) -> dict[str, Any]:
+        """The metadata stored with the model (see :meth:`fit`)."""
+        return json.loads(self._core.metadata)
+
+    @property
+    def predict_defaults(self) -> dict[str, Any]:
+        """The model's inference defaults (flat keys), which :meth:`predict` starts from."""
+        return self._core.predict_defaults
 
     @property
     def n_trees(self) -> int:
@@ -260,18 +261,30 @@ class Forest:
 
 
 def _metadata_json(metadata: dict[str, Any] | str | None) -> str:
+    """JSON object text of ``metadata``; NaN and infinities become null (JSON has no such
+    numbers, and ``np.asarray(..., dtype=float)`` reads null back as NaN)."""
     if metadata is None:
         return "{}"
     if isinstance(metadata, str):
         try:
-            json.loads(metadata)
+            metadata = json.loads(metadata)
         except ValueError as e:
             raise InvalidParameterError(f"metadata: not a JSON string ({e})") from None
-        return metadata
     try:
-        return json.dumps(metadata, sort_keys=True, default=_json_default)
+        return json.dumps(_finite(json.loads(json.dumps(metadata, default=_json_default))), sort_keys=True,
+                          allow_nan=False)
     except TypeError as e:
         raise InvalidParameterError(f"metadata: not JSON-serialisable ({e})") from None
+
+
+def _finite(o: Any) -> Any:
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, list):
+        return [_finite(v) for v in o]
+    return o
 
 
 def _json_default(o: Any) -> Any:

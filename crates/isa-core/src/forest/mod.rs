@@ -22,7 +22,8 @@ use rayon::prelude::*;
 use crate::criterion::{build_targets, Criterion, RawTargets};
 use crate::depth::{DepthStore, Part};
 use crate::error::{IsaError, Result};
-use crate::params::ForestParams;
+use crate::metadata::{ModelMetadata, TrainingSummary};
+use crate::params::{ForestParams, PredictParams, Valid};
 use crate::rng::mix;
 use crate::tree::{build_tree, TrainContext, Tree, Vote};
 
@@ -42,13 +43,16 @@ pub struct PartVote {
     pub vote: Vote,
 }
 
-/// A trained forest plus its opaque metadata (category, SSC, skeleton, size: JSON from Python).
+/// A trained forest, its metadata and its inference defaults.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Forest {
     pub params: ForestParams,
     pub trees: Vec<Tree>,
-    /// Opaque JSON string stored in the model file.
-    pub metadata: String,
+    /// Category, origin, box, training summary, extra JSON (stored in the model file).
+    pub metadata: ModelMetadata,
+    /// Inference parameters `predict` starts from (stored in the model file); callers overlay
+    /// their own on top (`PredictParams::overlay`).
+    pub predict_defaults: Valid<PredictParams>,
     /// Version of the crate that trained (or wrote) this forest.
     pub crate_version: String,
     /// The trees prepared for fast inference (built on the first prediction).
@@ -78,24 +82,25 @@ impl Forest {
     /// Trains a forest. The model (and its file bytes) depends only on `params` (incl. the
     /// seed) and the data, not on `n_threads`.
     pub fn fit(
-        params: &ForestParams,
+        params: &Valid<ForestParams>,
         data: &TrainingSet<'_>,
-        metadata: &str,
+        metadata: ModelMetadata,
         n_threads: Option<usize>,
     ) -> Result<Forest> {
         Self::fit_with_progress(params, data, metadata, n_threads, &|_| {})
     }
 
     /// [`Forest::fit`], calling `on_tree(trees_done)` after each tree (trees are built one after
-    /// the other), e.g. to drive a progress bar.
+    /// the other), e.g. to drive a progress bar. `metadata.training` is set to the data's counts;
+    /// the inference defaults are [`PredictParams::default`] (set `predict_defaults` after).
     pub fn fit_with_progress(
-        params: &ForestParams,
+        params: &Valid<ForestParams>,
         data: &TrainingSet<'_>,
-        metadata: &str,
+        mut metadata: ModelMetadata,
         n_threads: Option<usize>,
         on_tree: &(dyn Fn(usize) + Sync),
     ) -> Result<Forest> {
-        params.validate()?;
+        let params: &ForestParams = params;
         let n = data.parts.len();
         if n == 0 {
             return Err(IsaError::InvalidInput("parts: no training parts".into()));
@@ -146,10 +151,17 @@ impl Forest {
                     tree
                 })
                 .collect();
+            metadata.training = Some(TrainingSummary {
+                n_parts: n,
+                n_images: data.store.len(),
+                link_angle_dims: data.targets.link_angles.map_or(0, |a| a.1),
+                node_offset_dims: data.targets.node_offsets.map_or(0, |a| a.1),
+            });
             Ok(Forest {
                 params: params.clone(),
                 trees,
-                metadata: metadata.to_string(),
+                metadata,
+                predict_defaults: Valid::default(),
                 crate_version: crate::VERSION.to_string(),
                 flat: Default::default(),
             })
@@ -282,7 +294,7 @@ pub(crate) mod tests {
     fn toy_problem_is_recovered() {
         let (store, parts, off, rot) = toy(2);
         let data = q1_set(&store, &parts, &off, &rot);
-        let f = Forest::fit(&toy_params(), &data, "{}", None).unwrap();
+        let f = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), None).unwrap();
         let leaves = f.apply(&store, &parts).unwrap();
         let mut good = 0;
         for (p, row) in leaves.chunks(f.n_trees()).enumerate() {
@@ -317,10 +329,10 @@ pub(crate) mod tests {
             bag_fraction: 0.7,
             ..toy_params()
         };
-        let a = Forest::fit(&p, &data, "{}", Some(1)).unwrap().to_bytes();
-        let b = Forest::fit(&p, &data, "{}", Some(2)).unwrap().to_bytes();
+        let a = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), Some(1)).unwrap().to_bytes();
+        let b = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), Some(2)).unwrap().to_bytes();
         assert_eq!(a, b);
-        let c = Forest::fit(&ForestParams { seed: 1, ..p }, &data, "{}", Some(2))
+        let c = Forest::fit(&ForestParams { seed: 1, ..p }.check().unwrap(), &data, Default::default(), Some(2))
             .unwrap()
             .to_bytes();
         assert_ne!(a, c);
@@ -336,10 +348,10 @@ pub(crate) mod tests {
         };
         let seen = std::sync::Mutex::new(Vec::new());
         let with =
-            Forest::fit_with_progress(&p, &data, "{}", Some(2), &|k| seen.lock().unwrap().push(k))
+            Forest::fit_with_progress(&p.clone().check().unwrap(), &data, Default::default(), Some(2), &|k| seen.lock().unwrap().push(k))
                 .unwrap();
         assert_eq!(*seen.lock().unwrap(), vec![1, 2, 3]);
-        let without = Forest::fit(&p, &data, "{}", Some(2)).unwrap();
+        let without = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), Some(2)).unwrap();
         assert_eq!(with.to_bytes(), without.to_bytes());
     }
 
@@ -360,7 +372,7 @@ pub(crate) mod tests {
             targets: raw,
         };
         assert!(matches!(
-            Forest::fit(&toy_params(), &data, "", None),
+            Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), None),
             Err(IsaError::InvalidInput(_))
         ));
         let data = TrainingSet {
@@ -372,7 +384,7 @@ pub(crate) mod tests {
             quality: crate::params::Quality::Q1Q2,
             ..toy_params()
         };
-        let e = Forest::fit(&p, &data, "", None).unwrap_err().to_string();
+        let e = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), None).unwrap_err().to_string();
         assert!(e.contains("link_angles"), "{e}");
         let mut nan = off.clone();
         nan[7] = f32::NAN;
@@ -384,7 +396,7 @@ pub(crate) mod tests {
                 ..raw
             },
         };
-        let e = Forest::fit(&toy_params(), &data, "", None)
+        let e = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), None)
             .unwrap_err()
             .to_string();
         assert!(e.contains("offsets[2, 1]"), "{e}");

@@ -55,9 +55,8 @@ pub mod synth;
 #[cfg(test)]
 mod tests;
 
-pub use predict::{
-    depth_m_to_mm, image_votes, predict, DepthImage, ImageVotes, Intrinsics, PredictParams,
-};
+pub use crate::params::{PredictParams, VoteParams};
+pub use predict::{depth_m_to_mm, image_votes, predict, DepthImage, ImageVotes, Intrinsics};
 
 use crate::error::{IsaError, Result};
 use crate::rotation::normalise as normalise4;
@@ -79,105 +78,6 @@ pub struct PoseVote {
     pub rotation: [f32; 4],
     /// Non-negative weight; votes with weight 0 are ignored.
     pub weight: f32,
-}
-
-/// Parameters of [`find_modes`]. Defaults suit furniture-sized objects (0.5-2 m) at 1-5 m.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct VoteParams {
-    /// Radius of the position kernel and side of the grid cells (metres). Default 0.08.
-    pub position_bandwidth: f32,
-    /// Geodesic radius of the rotation kernel (radians, in (0, π]). Default 0.5 (~29°).
-    pub rotation_bandwidth: f32,
-    /// How many hypotheses to return at most. Default 5.
-    pub max_hypotheses: usize,
-    /// Position modes closer than this (metres) to a stronger one are suppressed; at least
-    /// `position_bandwidth / 4` is used. Default 0.25.
-    pub nms_radius: f32,
-    /// How many of the heaviest grid cells seed the position mean-shift. Default 64.
-    pub max_seeds: usize,
-    /// Iteration cap of each mean-shift loop. Default 50.
-    pub max_iterations: usize,
-    /// Rotation modes per position mode (more than 1 for symmetric objects). Default 1.
-    pub rotations_per_position: usize,
-    /// Candidate starts for the rotation mode (a strided subsample of the support). Default 64.
-    pub rotation_candidates: usize,
-    /// Votes the candidates' densities are evaluated on (strided subsample). Default 1024.
-    pub rotation_eval_votes: usize,
-    /// Hypotheses supported by fewer votes (in both kernels) are dropped. Default 3.
-    pub min_support: usize,
-    /// The coarse grid is built from at most this many votes (an even-stride subsample).
-    /// Default 32768.
-    pub coarse_votes: usize,
-    /// How many of the densest distinct coarse modes are refined on the raw votes. Default 16.
-    pub refine_modes: usize,
-    /// Mean-shift iterations (position and rotation) run on at most this many of a mode's votes
-    /// (an even-stride subsample); densities and supports always use all of them. Default 4096.
-    pub refine_votes: usize,
-}
-
-impl Default for VoteParams {
-    fn default() -> Self {
-        Self {
-            position_bandwidth: 0.08,
-            rotation_bandwidth: 0.5,
-            max_hypotheses: 5,
-            nms_radius: 0.25,
-            max_seeds: 64,
-            max_iterations: 50,
-            rotations_per_position: 1,
-            rotation_candidates: 64,
-            rotation_eval_votes: 1024,
-            min_support: 3,
-            coarse_votes: 32768,
-            refine_modes: 16,
-            refine_votes: 4096,
-        }
-    }
-}
-
-impl VoteParams {
-    /// Checks every field; the error names the parameter at fault.
-    pub fn validate(&self) -> Result<()> {
-        let bad =
-            |name: &str, why: String| Err(IsaError::InvalidParameter(format!("{name} {why}")));
-        let h = self.position_bandwidth;
-        if !(h.is_finite() && h > 1e-4 && h < 1e3) {
-            return bad(
-                "position_bandwidth",
-                format!("must be in (1e-4, 1e3) metres, got {h}"),
-            );
-        }
-        let r = self.rotation_bandwidth;
-        if !(r.is_finite() && r > 1e-4 && r <= std::f32::consts::PI) {
-            return bad(
-                "rotation_bandwidth",
-                format!("must be in (1e-4, pi] radians, got {r}"),
-            );
-        }
-        if !(self.nms_radius.is_finite() && self.nms_radius >= 0.0) {
-            return bad(
-                "nms_radius",
-                format!("must be finite and >= 0, got {}", self.nms_radius),
-            );
-        }
-        for (name, v) in [
-            ("max_hypotheses", self.max_hypotheses),
-            ("max_seeds", self.max_seeds),
-            ("max_iterations", self.max_iterations),
-            ("rotations_per_position", self.rotations_per_position),
-            ("rotation_candidates", self.rotation_candidates),
-            ("rotation_eval_votes", self.rotation_eval_votes),
-            ("coarse_votes", self.coarse_votes),
-            ("refine_modes", self.refine_modes),
-            ("refine_votes", self.refine_votes),
-        ] {
-            if v == 0 {
-                return bad(name, "must be >= 1, got 0".into());
-            }
-        }
-        Ok(())
-    }
 }
 
 /// A pose hypothesis: `X_cam = R X_obj + t` with the SSC as object origin.

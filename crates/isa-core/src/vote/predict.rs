@@ -16,8 +16,9 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{find_modes_valid, Hypothesis, PoseVote, VoteParams};
-use crate::depth::{sample_parts, DepthStore, Part};
+use super::{find_modes_valid, Hypothesis, PoseVote};
+use crate::params::{PredictParams, Valid};
+use crate::depth::{sample_parts, DepthStore, ImageRef, Part};
 use crate::error::{IsaError, Result};
 use crate::forest::flat::leaves_batched;
 #[cfg(test)]
@@ -82,70 +83,6 @@ impl Intrinsics {
     #[inline]
     pub fn back_project(&self, u: f64, v: f64, z: f64) -> [f64; 3] {
         [(u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z]
-    }
-}
-
-/// Parameters of [`predict`] and [`image_votes`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct PredictParams {
-    /// Parts on every `stride`-th pixel in u and v (with depth > 0). Default 4: about 19k parts
-    /// on a fully valid 640x480 frame; use 2 for small objects.
-    pub stride: usize,
-    /// Pixels nearer than this (metres) are not parts. Default 0.
-    pub min_depth: f32,
-    /// Pixels farther than this (metres) are not parts; `None` = no limit. Default `None`.
-    pub max_depth: Option<f32>,
-    /// Leaf votes of smaller weight (the leaf's share, before dividing by the number of trees)
-    /// are dropped. Default 0 (keep all).
-    pub min_leaf_weight: f32,
-    /// Mode finding.
-    pub vote: VoteParams,
-}
-
-impl Default for PredictParams {
-    fn default() -> Self {
-        Self {
-            stride: 4,
-            min_depth: 0.0,
-            max_depth: None,
-            min_leaf_weight: 0.0,
-            vote: VoteParams::default(),
-        }
-    }
-}
-
-impl PredictParams {
-    /// Checks every field (and the vote parameters); the error names the parameter.
-    pub fn validate(&self) -> Result<()> {
-        let bad = |m: String| Err(IsaError::InvalidParameter(m));
-        if self.stride == 0 || self.stride > 1024 {
-            return bad(format!(
-                "stride must be in 1..=1024 pixels, got {}",
-                self.stride
-            ));
-        }
-        if !(self.min_depth.is_finite() && self.min_depth >= 0.0) {
-            return bad(format!(
-                "min_depth must be finite and >= 0 metres, got {}",
-                self.min_depth
-            ));
-        }
-        if let Some(m) = self.max_depth {
-            if !(m.is_finite() && m > self.min_depth) {
-                return bad(format!(
-                    "max_depth must be finite and > min_depth ({}), got {m}",
-                    self.min_depth
-                ));
-            }
-        }
-        if !(self.min_leaf_weight.is_finite() && (0.0..=1.0).contains(&self.min_leaf_weight)) {
-            return bad(format!(
-                "min_leaf_weight must be in [0, 1], got {}",
-                self.min_leaf_weight
-            ));
-        }
-        self.vote.validate()
     }
 }
 
@@ -383,9 +320,8 @@ pub fn image_votes(
     forest: &Forest,
     depth: &DepthImage<'_>,
     k: &Intrinsics,
-    params: &PredictParams,
+    params: &Valid<PredictParams>,
 ) -> Result<ImageVotes> {
-    params.validate()?;
     k.validate()?;
     let (store, parts) = parts_of(depth, params)?;
     Ok(collect_votes(forest, &store, &parts, k, params, true))
@@ -399,9 +335,8 @@ pub fn predict(
     forest: &Forest,
     depth: &DepthImage<'_>,
     k: &Intrinsics,
-    params: &PredictParams,
+    params: &Valid<PredictParams>,
 ) -> Result<Vec<Hypothesis>> {
-    params.validate()?;
     k.validate()?;
     let (store, parts) = parts_of(depth, params)?;
     let votes = collect_votes(forest, &store, &parts, k, params, false);
@@ -438,7 +373,8 @@ mod tests {
         Forest {
             params: ForestParams::default(),
             trees: vec![tree; n],
-            metadata: String::new(),
+            metadata: Default::default(),
+            predict_defaults: Default::default(),
             crate_version: crate::VERSION.into(),
             flat: Default::default(),
         }
@@ -456,15 +392,11 @@ mod tests {
         use crate::forest::tests::{q1_set, toy, toy_params};
         let (store, parts, off, rot) = toy(2);
         let data = q1_set(&store, &parts, &off, &rot);
-        let mut a = Forest::fit(&toy_params(), &data, "{}", Some(1)).unwrap();
-        let b = Forest::fit(
-            &ForestParams {
+        let mut a = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), Some(1)).unwrap();
+        let b = Forest::fit(&ForestParams {
                 seed: 7,
                 ..toy_params()
-            },
-            &data,
-            "{}",
-            Some(1),
+            }.check().unwrap(), &data, Default::default(), Some(1),
         )
         .unwrap();
         let (w, h) = (64usize, 48usize);
@@ -474,7 +406,7 @@ mod tests {
             stride: 2,
             ..Default::default()
         };
-        let votes = |f: &Forest| image_votes(f, &img, &K, &p).unwrap().votes;
+        let votes = |f: &Forest| image_votes(f, &img, &K, &p.clone().check().unwrap()).unwrap().votes;
         let va = votes(&a);
         assert_eq!(votes(&a), va); // from the cache
         let vb = votes(&b.clone()); // a clone prepares its own trees
@@ -513,7 +445,7 @@ mod tests {
             ..Default::default()
         };
         let img = DepthImage::new(&depth, w, h).unwrap();
-        let iv = image_votes(&forest, &img, &K, &params).unwrap();
+        let iv = image_votes(&forest, &img, &K, &params.clone().check().unwrap()).unwrap();
         let expected_parts: Vec<(usize, usize)> = (0..h)
             .step_by(3)
             .flat_map(|v| (0..w).step_by(3).map(move |u| (u, v)))
@@ -548,7 +480,7 @@ mod tests {
             min_leaf_weight: 0.5,
             ..Default::default()
         };
-        let iv2 = image_votes(&forest, &img, &K, &p2).unwrap();
+        let iv2 = image_votes(&forest, &img, &K, &p2.clone().check().unwrap()).unwrap();
         assert!(iv2.n_parts > 0 && iv2.n_parts < iv.n_parts);
         assert_eq!(iv2.votes.len(), iv2.n_parts * 4);
         for px in &iv2.pixels {
@@ -565,7 +497,7 @@ mod tests {
         assert!(e.contains("depth") && e.contains("5x5"), "{e}");
         let img = DepthImage::new(&depth, 5, 4).unwrap();
         let bad_k = Intrinsics { fx: 0.0, ..K };
-        assert!(predict(&forest, &img, &bad_k, &PredictParams::default())
+        assert!(predict(&forest, &img, &bad_k, &Valid::default())
             .unwrap_err()
             .to_string()
             .contains("focal"));
@@ -573,20 +505,14 @@ mod tests {
             stride: 0,
             ..Default::default()
         };
-        assert!(predict(&forest, &img, &K, &p)
-            .unwrap_err()
-            .to_string()
-            .contains("stride"));
+        assert!(p.check().unwrap_err().to_string().contains("stride"));
         let p = PredictParams {
             max_depth: Some(0.0),
             ..Default::default()
         };
-        assert!(predict(&forest, &img, &K, &p)
-            .unwrap_err()
-            .to_string()
-            .contains("max_depth"));
+        assert!(p.check().unwrap_err().to_string().contains("max_depth"));
         // No trees, or no valid pixels: no hypotheses.
-        assert!(predict(&forest, &img, &K, &PredictParams::default())
+        assert!(predict(&forest, &img, &K, &Valid::default())
             .unwrap()
             .is_empty());
         assert!(
@@ -656,7 +582,7 @@ mod tests {
             parts: &parts,
             targets,
         };
-        (Forest::fit(&params, &data, "{}", None).unwrap(), k, poses)
+        (Forest::fit(&params.clone().check().unwrap(), &data, Default::default(), None).unwrap(), k, poses)
     }
 
     #[test]
@@ -742,7 +668,7 @@ mod tests {
             t[0] += 0.3; // shift sideways too
             let depth = synth::render(&synth::chair(), r, t, &kk, 320, 240);
             let img = DepthImage::new(&depth, 320, 240).unwrap();
-            let hyps = predict(&forest, &img, &kk, &params).unwrap();
+            let hyps = predict(&forest, &img, &kk, &params.clone().check().unwrap()).unwrap();
             assert!(!hyps.is_empty());
             let best = &hyps[0];
             let err_t = (0..3)
@@ -760,7 +686,7 @@ mod tests {
             }
             // Deterministic, whatever the thread count.
             let one = crate::forest::with_threads(Some(1), || {
-                predict(&forest, &img, &kk, &params).unwrap()
+                predict(&forest, &img, &kk, &params.clone().check().unwrap()).unwrap()
             })
             .unwrap();
             assert_eq!(one, hyps);

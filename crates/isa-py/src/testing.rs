@@ -1,7 +1,6 @@
-//! Module-level functions: part sampling, features, and the criterion / split-search hooks the
-//! NumPy reference tests and benchmarks call.
+//! `isa._core._testing`: the criterion and split-search hooks that the NumPy reference tests
+//! and the benchmarks call (not part of the public API).
 
-use numpy::ndarray::Array2;
 use numpy::prelude::*;
 use numpy::PyArray2;
 use pyo3::prelude::*;
@@ -9,10 +8,10 @@ use pyo3::types::PyDict;
 
 use isa_core::criterion::{build_targets, term_gains, Criterion, RawTargets};
 use isa_core::splitter::{best_split_columns, SplitConfig};
-use isa_core::{Feature, Quality};
+use isa_core::Quality;
 
-use crate::arrays::{array, check_finite, depth_store, parts as parts_arg};
-use crate::errors::{input_err, param_err, to_py};
+use crate::arrays::{array, f32_array, given, matrix};
+use crate::errors::{param_err, to_py};
 
 fn f32_2d<'py>(
     obj: &Bound<'py, PyAny>,
@@ -20,69 +19,7 @@ fn f32_2d<'py>(
     rows: Option<usize>,
     cols: Option<usize>,
 ) -> PyResult<numpy::PyReadonlyArrayDyn<'py, f32>> {
-    let a = array::<f32>(obj, name, "float32", &[rows, cols])?;
-    let c = a.shape()[1];
-    check_finite(
-        a.as_slice()
-            .map_err(|e| input_err(format!("{name}: {e}")))?,
-        name,
-        c,
-    )?;
-    Ok(a)
-}
-
-fn opt<'a, 'py>(o: Option<&'a Bound<'py, PyAny>>) -> Option<&'a Bound<'py, PyAny>> {
-    o.filter(|x| !x.is_none())
-}
-
-/// Parts on a `stride` grid of every image: (P, 3) int32 `[image, u, v]` with depth > 0.
-/// `max_per_image` (training) keeps at most that many per image, drawn from `seed`.
-#[pyfunction]
-#[pyo3(signature = (images, stride=4, max_per_image=None, seed=0))]
-pub fn sample_parts<'py>(
-    py: Python<'py>,
-    images: &Bound<'py, PyAny>,
-    stride: usize,
-    max_per_image: Option<usize>,
-    seed: u64,
-) -> PyResult<Bound<'py, PyArray2<i32>>> {
-    let store = depth_store(images)?;
-    let parts = py
-        .detach(|| isa_core::sample_parts(&store, stride, max_per_image, seed))
-        .map_err(to_py)?;
-    let n = parts.len();
-    let flat: Vec<i32> = parts.into_iter().flatten().collect();
-    Ok(Array2::from_shape_vec((n, 3), flat)
-        .expect("shape")
-        .into_pyarray(py))
-}
-
-/// Eq. 5 features of every part for every candidate `(u[c], v[c])` (pixel·metres): (P, C) float32 mm.
-#[pyfunction]
-pub fn depth_features<'py>(
-    py: Python<'py>,
-    images: &Bound<'py, PyAny>,
-    parts: &Bound<'py, PyAny>,
-    u: &Bound<'py, PyAny>,
-    v: &Bound<'py, PyAny>,
-) -> PyResult<Bound<'py, PyArray2<f32>>> {
-    let store = depth_store(images)?;
-    let parts = parts_arg(parts)?;
-    store.validate_parts(&parts).map_err(to_py)?;
-    let ua = f32_2d(u, "u", None, Some(2))?;
-    let c = ua.shape()[0];
-    let va = f32_2d(v, "v", Some(c), Some(2))?;
-    let (us, vs) = (ua.as_slice()?, va.as_slice()?);
-    let feats: Vec<Feature> = (0..c)
-        .map(|k| Feature {
-            u: [us[2 * k], us[2 * k + 1]],
-            v: [vs[2 * k], vs[2 * k + 1]],
-        })
-        .collect();
-    let out = py.detach(|| isa_core::features::eval_matrix(&store, &parts, &feats));
-    Ok(Array2::from_shape_vec((parts.len(), c), out)
-        .expect("shape")
-        .into_pyarray(py))
+    f32_array(obj, name, &[rows, cols])
 }
 
 struct Raw<'py> {
@@ -103,10 +40,10 @@ impl<'py> Raw<'py> {
         let n = off.shape()[0];
         Ok(Raw {
             rot: f32_2d(rotations, "rotations", Some(n), Some(4))?,
-            la: opt(link_angles)
+            la: given(link_angles)
                 .map(|o| f32_2d(o, "link_angles", Some(n), None))
                 .transpose()?,
-            no: opt(node_offsets)
+            no: given(node_offsets)
                 .map(|o| f32_2d(o, "node_offsets", Some(n), None))
                 .transpose()?,
             off,
@@ -181,9 +118,7 @@ pub fn criterion_targets<'py>(
     let t = build_targets(&r.raw(), q, reduce_dims).map_err(to_py)?;
     let dims = t.layout.blocks.iter().map(|b| b.dim).collect();
     Ok((
-        Array2::from_shape_vec((t.n, t.layout.dim), t.data)
-            .expect("shape")
-            .into_pyarray(py),
+        matrix(py, t.n, t.layout.dim, t.data),
         dims,
     ))
 }
@@ -254,4 +189,16 @@ pub fn split_search<'py>(
         d.set_item("n_left", b.n_left)?;
     }
     Ok(d)
+}
+
+/// The `_testing` submodule (also importable as `isa._core._testing`).
+pub fn submodule<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyModule>> {
+    let m = PyModule::new(py, "_testing")?;
+    m.add_function(wrap_pyfunction!(criterion_gains, &m)?)?;
+    m.add_function(wrap_pyfunction!(criterion_targets, &m)?)?;
+    m.add_function(wrap_pyfunction!(split_search, &m)?)?;
+    py.import("sys")?
+        .getattr("modules")?
+        .set_item("isa._core._testing", &m)?;
+    Ok(m)
 }

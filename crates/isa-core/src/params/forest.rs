@@ -1,14 +1,17 @@
 //! Hyper-parameters of a forest, validated in one place and written into every model file.
 
-use serde::{Deserialize, Serialize};
+use serde::{Deserialize, Deserializer, Serialize};
+use serde_json::Value;
 
+use super::overlay::overlay_json;
+use super::Valid;
 use crate::error::{IsaError, Result};
 
 /// Which criterion terms of the paper (Eq. 9-11) the split quality sums.
 ///
 /// Q1 (6D pose entropy) is always present; Q2 (link-angle entropy) needs `link_angles`, Q3
 /// (node-offset entropy) needs `node_offsets`. These are the paper's four forests.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum Quality {
     #[serde(rename = "Q1")]
     Q1,
@@ -18,6 +21,14 @@ pub enum Quality {
     Q1Q3,
     #[serde(rename = "Q1+Q2+Q3")]
     Q1Q2Q3,
+}
+
+/// Read with [`Quality::parse`], so "q1 + q2" is accepted wherever parameters are read.
+impl<'de> Deserialize<'de> for Quality {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let s = String::deserialize(d)?;
+        Quality::parse(&s).map_err(|e| serde::de::Error::custom(e.to_string()))
+    }
 }
 
 impl Quality {
@@ -133,6 +144,18 @@ impl Default for ForestParams {
 }
 
 impl ForestParams {
+    /// The validated parameters, the only form [`Forest::fit`](crate::Forest::fit) takes.
+    pub fn check(self) -> Result<Valid<Self>> {
+        self.validate()?;
+        Ok(Valid(self))
+    }
+
+    /// Replaces the fields named in `json` (an object); errors name the key and `source`.
+    pub fn overlay(&mut self, json: &Value, source: &str) -> Result<()> {
+        *self = overlay_json(self, json, source)?;
+        Ok(())
+    }
+
     /// Checks every field; the error names the parameter at fault.
     pub fn validate(&self) -> Result<()> {
         fn bad(msg: String) -> Result<()> {
@@ -234,11 +257,10 @@ impl ForestParams {
     }
 
     /// Parses and validates the JSON form.
-    pub fn from_json(s: &str) -> Result<Self> {
+    pub fn from_json(s: &str) -> Result<Valid<Self>> {
         let p: ForestParams = serde_json::from_str(s)
             .map_err(|e| IsaError::InvalidParameter(format!("forest parameters JSON: {e}")))?;
-        p.validate()?;
-        Ok(p)
+        p.check()
     }
 }
 
@@ -250,7 +272,7 @@ mod tests {
     fn defaults_validate_and_roundtrip() {
         let p = ForestParams::default();
         p.validate().unwrap();
-        assert_eq!(ForestParams::from_json(&p.to_json()).unwrap(), p);
+        assert_eq!(*ForestParams::from_json(&p.to_json()).unwrap(), p);
     }
 
     #[test]
@@ -260,6 +282,25 @@ mod tests {
         for q in [Quality::Q1, Quality::Q1Q2, Quality::Q1Q3, Quality::Q1Q2Q3] {
             assert_eq!(Quality::parse(q.as_str()).unwrap(), q);
         }
+    }
+
+    #[test]
+    fn overlay_parses_quality_and_names_bad_keys() {
+        let mut p = ForestParams::default();
+        p.overlay(&serde_json::json!({"quality": "q1 + q3", "n_trees": 3}), "kw")
+            .unwrap();
+        assert_eq!((p.quality, p.n_trees), (Quality::Q1Q3, 3));
+        let e = p
+            .overlay(&serde_json::json!({"quality": "Q2"}), "flags")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("flags: quality:") && e.contains("Q1+Q2+Q3"), "{e}");
+        let e = p
+            .overlay(&serde_json::json!({"n_tree": 3}), "kw")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("\"n_tree\"") && e.contains("\"n_trees\""), "{e}");
+        assert!(p.check().is_ok());
     }
 
     #[test]

@@ -1,0 +1,258 @@
+//! The command line (clap). Parameter flags are named as the core's parameter fields and carry
+//! no defaults of their own: their help shows the core's `Default` values, and what is given is
+//! overlaid on the defaults (and, for `predict`, on the model's) by the core's JSON overlay.
+
+use std::fmt::Display;
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use serde::Serialize;
+
+use isa_core::{ForestParams, PredictParams};
+
+pub const EXIT_CODES: &str = "\
+Exit codes:
+  0  success
+  1  unexpected failure
+  2  bad command line (unknown option, missing argument)
+  3  a file is missing or cannot be read/written (the message names it)
+  4  an input is invalid: corrupt or foreign model/training-set file, depth image that is not
+     16-bit single-channel or does not fit its intrinsics, malformed camera JSON
+  5  a parameter value is invalid (the message names the parameter)";
+
+/// `text [default: value]`, the value taken from the core's defaults.
+fn dflt(text: &str, value: impl Display) -> String {
+    format!("{text} [default: {value}]")
+}
+
+/// `text [default: the model's, else value]` for inference parameters.
+fn model_dflt(text: &str, value: impl Display) -> String {
+    format!("{text} [default: the model's, else {value}]")
+}
+
+fn fp() -> ForestParams {
+    ForestParams::default()
+}
+
+fn pp() -> PredictParams {
+    PredictParams::default()
+}
+
+/// Category-level 6D object pose from depth images (Intrinsic Structure Adaptor, ISA).
+///
+/// A forest trained on depth images of one object category (`isa train`) votes for the 6D pose
+/// (rotation R, translation t of the category's semantically selected centre, X_cam = R X_obj + t)
+/// of unseen instances in whole depth images (`isa predict`). `isa inspect` shows what a model
+/// file holds.
+#[derive(Parser)]
+#[command(name = "isa", version = isa_core::VERSION, after_help = EXIT_CODES)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    Train(TrainArgs),
+    Predict(PredictArgs),
+    Inspect(InspectArgs),
+}
+
+/// Train a forest from a training-set file (.isat, written by Python's
+/// `isa._core.write_trainset`) and save it as a model file.
+///
+/// Training parameters: the defaults of isa_core::ForestParams, overridden by `--params` (a
+/// JSON object with any subset of the fields), overridden by the flags below.
+#[derive(Args)]
+#[command(after_help = EXIT_CODES)]
+pub struct TrainArgs {
+    /// Training-set file (.isat): depth crops, parts, offsets, rotations, optional link angles
+    /// and node offsets, metadata (format: docs/CLI.md).
+    pub trainset: PathBuf,
+    /// Where to write the model file (written atomically).
+    #[arg(short, long, value_name = "MODEL")]
+    pub output: PathBuf,
+    /// JSON file of forest parameters (any subset of the ForestParams fields).
+    #[arg(long, value_name = "JSON")]
+    pub params: Option<PathBuf>,
+    #[command(flatten)]
+    pub flags: TrainFlags,
+    /// Worker threads [default: all cores]. Does not change the model.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress display.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// Forest-parameter flags: serialised, the given ones form the "flags" overlay.
+#[derive(Args, Serialize)]
+pub struct TrainFlags {
+    #[arg(long, help = dflt("Number of trees", fp().n_trees))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub n_trees: Option<usize>,
+    #[arg(long, help = dflt("Maximum tree depth, root = 0", fp().max_depth))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_depth: Option<usize>,
+    #[arg(long, help = dflt(
+        "Split criterion: Q1, Q1+Q2, Q1+Q3 or Q1+Q2+Q3 (paper Eq. 9-11); Q2 needs link angles and \
+         Q3 node offsets in the training set",
+        fp().quality.as_str()
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quality: Option<String>,
+    #[arg(long, help = dflt("Random feature candidates per node", fp().n_candidates))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub n_candidates: Option<usize>,
+    #[arg(long, help = dflt("Minimum parts in each child of a split", fp().min_samples_leaf))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_samples_leaf: Option<usize>,
+    #[arg(long, help = dflt("Nodes with fewer parts become leaves", fp().min_samples_split))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_samples_split: Option<usize>,
+    #[arg(long, help = dflt("Fraction of the parts each tree trains on, in (0, 1]", fp().bag_fraction))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bag_fraction: Option<f64>,
+    #[arg(long, help = dflt(
+        "Seed of every random choice (same seed + data = same model bytes)",
+        fp().seed
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Format {
+    /// One JSON document: per image, its hypotheses (R row-major, t in metres, quaternion w x y z,
+    /// score, support), the intrinsics, the parameters and the time.
+    Json,
+    /// BOP challenge results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm,
+    /// time in seconds), one row per hypothesis.
+    Bop,
+}
+
+/// Predict 6D poses in depth images: every part of the whole image votes (no segmentation, no
+/// boxes); modes of the votes become ranked hypotheses.
+///
+/// Inputs: depth PNGs (16-bit, millimetres, 0 = missing) with `--intrinsics` or `--camera`, or
+/// a BOP scene folder with `--scene`. Inference parameters: the model's defaults, overridden by
+/// `--params`, overridden by the flags. Examples:
+///
+///   isa predict chair.isaf depth.png -k 525 525 319.5 239.5
+///
+///   isa predict chair.isaf scene/depth/000012.png --camera scene/scene_camera.json
+///
+///   isa predict chair.isaf --scene bop/test/000001 --format bop -o results.csv
+#[derive(Args)]
+#[command(after_help = EXIT_CODES)]
+pub struct PredictArgs {
+    /// Model file written by `isa train` or Python's `Forest.save`.
+    #[arg(value_name = "MODEL")]
+    pub model: PathBuf,
+    /// Depth images: 16-bit single-channel PNGs in millimetres (times the camera's depth_scale
+    /// with --camera), 0 = missing.
+    #[arg(value_name = "PNG", conflicts_with = "scene")]
+    pub depth: Vec<PathBuf>,
+    /// Pinhole intrinsics in pixels: FX FY CX CY.
+    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera")]
+    pub intrinsics: Option<Vec<f64>>,
+    /// Camera file: a BOP scene_camera.json (per image id: cam_K, depth_scale; the id is the
+    /// PNG's file name, e.g. 000012.png, or --image-id) or a BOP camera.json (fx, fy, cx, cy,
+    /// width, height, depth_scale; the image size is then checked).
+    #[arg(short, long, value_name = "JSON")]
+    pub camera: Option<PathBuf>,
+    /// A BOP scene folder: every depth/*.png with its scene_camera.json.
+    #[arg(long, value_name = "DIR")]
+    pub scene: Option<PathBuf>,
+    /// Image id for --camera scene_camera.json when the file name is not one [default: from the
+    /// file name].
+    #[arg(long)]
+    pub image_id: Option<u64>,
+    /// BOP scene id for --format bop [default: the --scene folder's name if a number, else 0].
+    #[arg(long)]
+    pub scene_id: Option<u64>,
+    /// BOP object id of the category for --format bop.
+    #[arg(long, default_value_t = 1)]
+    pub obj_id: u64,
+    /// Output format.
+    #[arg(short, long, value_enum, default_value_t = Format::Json)]
+    pub format: Format,
+    /// Output file [default: standard output].
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    #[command(flatten)]
+    pub flags: PredictFlags,
+    /// JSON file of inference parameters (fields of PredictParams, with mode finding under
+    /// "vote" or flat); flags override it.
+    #[arg(long, value_name = "JSON")]
+    pub params: Option<PathBuf>,
+    /// Worker threads [default: all cores]. Does not change the result.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress display.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// Inference-parameter flags (flat keys of PredictParams): the given ones form the "flags"
+/// overlay.
+#[derive(Args, Serialize)]
+pub struct PredictFlags {
+    #[arg(long, help = model_dflt("Parts on every STRIDE-th pixel in u and v", pp().stride))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stride: Option<usize>,
+    #[arg(long, help = model_dflt("Ignore pixels nearer than this, metres", pp().min_depth))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_depth: Option<f32>,
+    #[arg(long, help = model_dflt(
+        "Ignore pixels farther than this, metres",
+        pp().max_depth.map_or("no limit".to_string(), |m| m.to_string())
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_depth: Option<f32>,
+    #[arg(long, help = model_dflt(
+        "Radius of the position kernel and grid cell, metres",
+        pp().vote.position_bandwidth
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub position_bandwidth: Option<f32>,
+    #[arg(long, help = model_dflt(
+        "Geodesic radius of the rotation kernel, radians",
+        pp().vote.rotation_bandwidth
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rotation_bandwidth: Option<f32>,
+    #[arg(long, help = model_dflt("Hypotheses per image at most", pp().vote.max_hypotheses))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_hypotheses: Option<usize>,
+    #[arg(long, help = model_dflt(
+        "Positions closer than this to a better hypothesis are suppressed, metres",
+        pp().vote.nms_radius
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nms_radius: Option<f32>,
+    #[arg(long, help = model_dflt(
+        "Rotation modes per position (for symmetric objects)",
+        pp().vote.rotations_per_position
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rotations_per_position: Option<usize>,
+    #[arg(long, help = model_dflt(
+        "Drop hypotheses supported by fewer votes",
+        pp().vote.min_support
+    ))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_support: Option<usize>,
+}
+
+/// Show what a model file holds: format and crate versions, training parameters, inference
+/// defaults, metadata (category, SSC, ...), and the size of every tree.
+#[derive(Args)]
+#[command(after_help = EXIT_CODES)]
+pub struct InspectArgs {
+    /// Model file.
+    pub model: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}

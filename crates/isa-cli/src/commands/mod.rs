@@ -1,0 +1,42 @@
+//! One module per subcommand, and what they share: reading JSON and model files, the
+//! parameter overlay sources.
+
+pub mod inspect;
+pub mod predict;
+pub mod train;
+
+use std::path::Path;
+
+use serde::Serialize;
+use serde_json::Value;
+
+use isa_core::Forest;
+
+use crate::error::{CliError, CliResult};
+use crate::inputs::read_json;
+
+/// Where flag values come from, in the core's overlay messages.
+pub const FLAGS: &str = "flags";
+
+/// The `--params` file (if given) as an overlay source: its JSON and its name.
+pub fn params_file(path: Option<&Path>) -> CliResult<Option<(Value, String)>> {
+    path.map(|p| {
+        Ok((
+            read_json(p, "parameter file", CliError::param)?,
+            format!("parameter file {}", p.display()),
+        ))
+    })
+    .transpose()
+}
+
+/// The given flags (a struct of `Option`s skipping `None`) as a JSON object.
+pub fn flags_json(flags: &impl Serialize) -> Value {
+    serde_json::to_value(flags).expect("flags serialise")
+}
+
+pub fn load_model(path: &Path) -> CliResult<Forest> {
+    if !path.exists() {
+        return Err(CliError::missing(path, "model file"));
+    }
+    Ok(Forest::load(path)?)
+}

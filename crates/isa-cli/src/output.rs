@@ -1,0 +1,171 @@
+//! What the commands print: predictions as one JSON document or a BOP results CSV, model
+//! summaries as JSON or text; and writing it to a file or standard output.
+
+use std::io::Write;
+use std::path::Path;
+
+use serde_json::{json, Value};
+
+use isa_core::vote::Hypothesis;
+use isa_core::{Forest, PredictParams};
+
+use crate::commands::predict::ImageJob;
+use crate::error::{CliError, CliResult};
+
+/// The hypotheses of one image.
+pub struct ImageResult {
+    pub job: ImageJob,
+    pub width: usize,
+    pub height: usize,
+    pub hyps: Vec<Hypothesis>,
+    pub seconds: f64,
+}
+
+/// Writes `text` to `path`, or to standard output.
+pub fn write(path: Option<&Path>, text: &str) -> CliResult<()> {
+    match path {
+        Some(path) => std::fs::write(path, text).map_err(|e| CliError::io(path, e)),
+        None => std::io::stdout()
+            .lock()
+            .write_all(text.as_bytes())
+            .map_err(|e| CliError::io(Path::new("<stdout>"), e)),
+    }
+}
+
+pub fn predict_json(model: &Path, params: &PredictParams, results: &[ImageResult]) -> String {
+    let images: Vec<Value> = results
+        .iter()
+        .map(|r| {
+            json!({
+                "depth": r.job.path.display().to_string(),
+                "image_id": r.job.id,
+                "width": r.width,
+                "height": r.height,
+                "intrinsics": r.job.k,
+                "seconds": r.seconds,
+                "hypotheses": r.hyps.iter().map(|h| json!({
+                    "R": h.rotation,
+                    "t": h.translation,
+                    "quaternion": h.quaternion,
+                    "score": h.score,
+                    "support": h.support,
+                    "position_score": h.position_score,
+                    "position_support": h.position_support,
+                })).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let doc = json!({
+        "isa_version": isa_core::VERSION,
+        "model": model.display().to_string(),
+        "units": {"t": "metres, camera frame (OpenCV), X_cam = R X_obj + t", "R": "row-major"},
+        "params": params,
+        "images": images,
+    });
+    serde_json::to_string_pretty(&doc).expect("serialise") + "\n"
+}
+
+/// BOP challenge results: `scene_id,im_id,obj_id,score,R,t,time`, t in millimetres.
+pub fn bop_csv(results: &[ImageResult], scene_id: u64, obj_id: u64) -> CliResult<String> {
+    let mut s = String::from("scene_id,im_id,obj_id,score,R,t,time\n");
+    for r in results {
+        let im_id = r.job.id.ok_or_else(|| {
+            CliError::param(format!(
+                "--format bop needs an image id: name {} by its id (000012.png) or pass --image-id",
+                r.job.path.display()
+            ))
+        })?;
+        for h in &r.hyps {
+            let rr: Vec<String> = h
+                .rotation
+                .iter()
+                .flatten()
+                .map(|v| format!("{v:.8}"))
+                .collect();
+            let tt: Vec<String> = h
+                .translation
+                .iter()
+                .map(|v| format!("{:.4}", v * 1000.0))
+                .collect();
+            s.push_str(&format!(
+                "{scene_id},{im_id},{obj_id},{:.6},{},{},{:.6}\n",
+                h.score,
+                rr.join(" "),
+                tt.join(" "),
+                r.seconds
+            ));
+        }
+    }
+    Ok(s)
+}
+
+fn tree_rows(forest: &Forest) -> Vec<Value> {
+    forest
+        .trees
+        .iter()
+        .map(|t| json!({"nodes": t.nodes.len(), "leaves": t.n_leaves(), "depth": t.depth(), "votes": t.votes.len()}))
+        .collect()
+}
+
+pub fn inspect_json(forest: &Forest, path: &Path, bytes: u64) -> String {
+    let (nodes, leaves) = forest.size();
+    let votes: usize = forest.trees.iter().map(|t| t.votes.len()).sum();
+    let doc = json!({
+        "path": path.display().to_string(),
+        "file_bytes": bytes,
+        "format_version": isa_core::model_io::FORMAT_VERSION,
+        "crate_version": forest.crate_version,
+        "params": forest.params,
+        "predict_defaults": forest.predict_defaults,
+        "metadata": forest.metadata,
+        "n_trees": forest.n_trees(),
+        "n_nodes": nodes,
+        "n_leaves": leaves,
+        "n_votes": votes,
+        "trees": tree_rows(forest),
+    });
+    serde_json::to_string_pretty(&doc).expect("serialise") + "\n"
+}
+
+/// `value` as indented JSON under a 14-column label.
+fn block(label: &str, value: &impl serde::Serialize) -> String {
+    format!(
+        "{label:<14}{}\n",
+        serde_json::to_string_pretty(value)
+            .expect("serialise")
+            .replace('\n', "\n              ")
+    )
+}
+
+pub fn inspect_text(forest: &Forest, path: &Path, bytes: u64) -> String {
+    let (nodes, leaves) = forest.size();
+    let votes: usize = forest.trees.iter().map(|t| t.votes.len()).sum();
+    let mut s = format!(
+        "model file    {} ({bytes} bytes, format version {})\n",
+        path.display(),
+        isa_core::model_io::FORMAT_VERSION
+    );
+    s += &format!("trained by    isa {}\n", forest.crate_version);
+    s += &format!(
+        "forest        {} trees, {nodes} nodes, {leaves} leaves, {votes} leaf votes\n",
+        forest.n_trees()
+    );
+    let depths: Vec<usize> = forest.trees.iter().map(|t| t.depth()).collect();
+    if let (Some(lo), Some(hi)) = (depths.iter().min(), depths.iter().max()) {
+        s += &format!("tree depth    min {lo} / max {hi}\n");
+    }
+    s += &block("parameters", &forest.params);
+    s += &block("inference", &*forest.predict_defaults);
+    s += &block("metadata", &forest.metadata);
+    s += "per tree      nodes / leaves / depth / votes\n";
+    for (i, t) in forest.trees.iter().enumerate() {
+        s += &format!(
+            "  {i:>4}        {} / {} / {} / {}\n",
+            t.nodes.len(),
+            t.n_leaves(),
+            t.depth(),
+            t.votes.len()
+        );
+    }
+    s
+}

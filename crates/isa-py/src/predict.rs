@@ -1,0 +1,298 @@
+//! Inference bindings: whole-image `predict` / `image_votes` (also methods of `Forest`), and
+//! `find_modes` on raw votes.
+//!
+//! Keyword parameters of `predict` / `image_votes` are the fields of
+//! `isa_core::PredictParams` with the vote keys flat (`stride`, `min_depth`, `max_depth`,
+//! `min_leaf_weight`, `position_bandwidth`, `rotation_bandwidth`, `max_hypotheses`, ...; see
+//! `isa._core.PREDICT_DEFAULTS`), overlaid on the model's inference defaults by the core;
+//! unknown names raise `InvalidParameterError`.
+
+use numpy::PyUntypedArray;
+use numpy::prelude::*;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use isa_core::vote::{self as core_vote, DepthImage, Intrinsics, PoseVote};
+use isa_core::{PredictParams, Valid, VoteParams};
+
+use crate::arrays::{array, as_slice, check_finite, describe, given, rows, vector};
+use crate::errors::{input_err, param_err, to_py};
+use crate::forest::PyForest;
+use crate::hypothesis;
+use crate::params::{kwargs_json, predict_params, KWARGS};
+
+/// Intrinsics from an object with `fx, fy, cx, cy` attributes (e.g. `isa.camera.Intrinsics`),
+/// a 3x3 camera matrix, or a sequence `(fx, fy, cx, cy)`.
+fn intrinsics(k: &Bound<'_, PyAny>) -> PyResult<Intrinsics> {
+    let i = if k.hasattr("fx")? {
+        Intrinsics {
+            fx: k.getattr("fx")?.extract()?,
+            fy: k.getattr("fy")?.extract()?,
+            cx: k.getattr("cx")?.extract()?,
+            cy: k.getattr("cy")?.extract()?,
+        }
+    } else if let Ok(m) = k.extract::<[[f64; 3]; 3]>() {
+        return Intrinsics::from_matrix(m).map_err(to_py);
+    } else if let Ok(v) = k.extract::<[f64; 4]>() {
+        Intrinsics {
+            fx: v[0],
+            fy: v[1],
+            cx: v[2],
+            cy: v[3],
+        }
+    } else {
+        return Err(input_err(format!(
+            "K: expected a 3x3 camera matrix, (fx, fy, cx, cy) or an isa.camera.Intrinsics, got {}",
+            describe(k)
+        )));
+    };
+    i.validate().map_err(to_py)?;
+    Ok(i)
+}
+
+/// `(pixels in mm, width, height)` of a 2D depth array: uint16 millimetres, or float32/float64
+/// metres (0, NaN, negative = missing).
+fn depth_mm(depth: &Bound<'_, PyAny>) -> PyResult<(Vec<u16>, usize, usize)> {
+    let arr = depth.cast::<PyUntypedArray>().map_err(|_| {
+        input_err(format!(
+            "depth: expected a 2D uint16 (mm) or float32 (metres) array, got {}",
+            describe(depth)
+        ))
+    })?;
+    if arr.ndim() != 2 {
+        return Err(input_err(format!(
+            "depth: expected a 2D array (height, width), got {}",
+            describe(depth)
+        )));
+    }
+    let (h, w) = (arr.shape()[0], arr.shape()[1]);
+    let dt = arr.dtype();
+    let py = depth.py();
+    let px = if dt.is_equiv_to(&numpy::dtype::<u16>(py)) {
+        array::<u16>(depth, "depth", "uint16", &[None, None])?
+            .as_slice()
+            .map_err(|e| input_err(e.to_string()))?
+            .to_vec()
+    } else if dt.is_equiv_to(&numpy::dtype::<f32>(py)) {
+        let a = array::<f32>(depth, "depth", "float32", &[None, None])?;
+        core_vote::depth_m_to_mm(a.as_slice().map_err(|e| input_err(e.to_string()))?)
+    } else if dt.is_equiv_to(&numpy::dtype::<f64>(py)) {
+        let a = array::<f64>(depth, "depth", "float64", &[None, None])?;
+        let m: Vec<f32> = a
+            .as_slice()
+            .map_err(|e| input_err(e.to_string()))?
+            .iter()
+            .map(|v| *v as f32)
+            .collect();
+        core_vote::depth_m_to_mm(&m)
+    } else {
+        return Err(input_err(format!(
+            "depth: expected uint16 (mm) or float32/float64 (metres), got {}",
+            describe(depth)
+        )));
+    };
+    Ok((px, w, h))
+}
+
+/// The `_core.Forest` behind `obj`: itself, or its `.core` (an `isa.forest.Forest`).
+fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyForest>> {
+    if let Ok(f) = obj.cast::<PyForest>() {
+        return Ok(f.clone());
+    }
+    if let Ok(c) = obj.getattr("core") {
+        if let Ok(f) = c.cast::<PyForest>() {
+            return Ok(f.clone());
+        }
+    }
+    Err(input_err(format!(
+        "forest: expected an isa.forest.Forest or isa._core.Forest, got {}",
+        describe(obj)
+    )))
+}
+
+fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<usize>) -> PyResult<Option<usize>> {
+    match n_threads {
+        Some(0) => Err(param_err(
+            "n_threads must be at least 1 (or None for the forest's setting)",
+        )),
+        Some(n) => Ok(Some(n)),
+        None => forest.getattr("n_threads")?.extract(),
+    }
+}
+
+/// What one whole-image call needs, converted and checked: threads, parameters (the model's
+/// defaults overlaid by the keyword arguments), intrinsics, depth in mm with its size.
+struct ImageCall {
+    threads: Option<usize>,
+    params: Valid<PredictParams>,
+    k: Intrinsics,
+    px: Vec<u16>,
+    width: usize,
+    height: usize,
+}
+
+fn image_call(
+    forest: &Bound<'_, PyForest>,
+    depth: &Bound<'_, PyAny>,
+    k: &Bound<'_, PyAny>,
+    n_threads: Option<usize>,
+    params: Option<&Bound<'_, PyDict>>,
+) -> PyResult<ImageCall> {
+    let threads = threads_of(forest, n_threads)?;
+    let params = predict_params(&forest.borrow().core()?.predict_defaults, params)?;
+    let k = intrinsics(k)?;
+    let (px, width, height) = depth_mm(depth)?;
+    Ok(ImageCall {
+        threads,
+        params,
+        k,
+        px,
+        width,
+        height,
+    })
+}
+
+/// Ranked hypotheses of `forest` on a whole depth image, with the model's inference defaults
+/// overlaid by `params` (shared by `Forest.predict` and `predict`).
+pub fn predict_with<'py>(
+    forest: &Bound<'py, PyForest>,
+    depth: &Bound<'py, PyAny>,
+    k: &Bound<'py, PyAny>,
+    n_threads: Option<usize>,
+    params: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyList>> {
+    let py = forest.py();
+    let c = image_call(forest, depth, k, n_threads, params)?;
+    let fref = forest.borrow();
+    let f = fref.core()?;
+    let hyps = py
+        .detach(|| {
+            let img = DepthImage::new(&c.px, c.width, c.height)?;
+            isa_core::forest::with_threads(c.threads, || {
+                core_vote::predict(f, &img, &c.k, &c.params)
+            })?
+        })
+        .map_err(to_py)?;
+    hypothesis::to_list(py, hyps)
+}
+
+/// Every vote of a whole depth image (shared by `Forest.image_votes` and `image_votes`).
+pub fn image_votes_with<'py>(
+    forest: &Bound<'py, PyForest>,
+    depth: &Bound<'py, PyAny>,
+    k: &Bound<'py, PyAny>,
+    n_threads: Option<usize>,
+    params: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let py = forest.py();
+    let c = image_call(forest, depth, k, n_threads, params)?;
+    let fref = forest.borrow();
+    let f = fref.core()?;
+    let iv = py
+        .detach(|| {
+            let img = DepthImage::new(&c.px, c.width, c.height)?;
+            isa_core::forest::with_threads(c.threads, || {
+                core_vote::image_votes(f, &img, &c.k, &c.params)
+            })?
+        })
+        .map_err(to_py)?;
+    let d = PyDict::new(py);
+    d.set_item("position", rows(py, iv.votes.iter().map(|v| v.position)))?;
+    d.set_item("rotation", rows(py, iv.votes.iter().map(|v| v.rotation)))?;
+    d.set_item("weight", vector(py, iv.votes.iter().map(|v| v.weight).collect()))?;
+    d.set_item(
+        "pixel",
+        rows(py, iv.pixels.iter().map(|p| [p[0] as i32, p[1] as i32])),
+    )?;
+    d.set_item("tree", vector(py, iv.trees.iter().map(|t| *t as i32).collect()))?;
+    d.set_item("n_parts", iv.n_parts)?;
+    Ok(d)
+}
+
+/// Ranked 6D pose hypotheses of the objects in a whole depth image (paper Eq. 12-13):
+/// `forest.predict(depth, K, **params)` (see `Forest.predict`).
+#[pyfunction]
+#[pyo3(signature = (forest, depth, K, *, n_threads=None, **params))]
+#[allow(non_snake_case)]
+pub fn predict<'py>(
+    forest: &Bound<'py, PyAny>,
+    depth: &Bound<'py, PyAny>,
+    K: &Bound<'py, PyAny>,
+    n_threads: Option<usize>,
+    params: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyList>> {
+    predict_with(&core_forest(forest)?, depth, K, n_threads, params)
+}
+
+/// Every vote of a whole depth image (for plots): `forest.image_votes(depth, K, **params)`.
+#[pyfunction]
+#[pyo3(signature = (forest, depth, K, *, n_threads=None, **params))]
+#[allow(non_snake_case)]
+pub fn image_votes<'py>(
+    forest: &Bound<'py, PyAny>,
+    depth: &Bound<'py, PyAny>,
+    K: &Bound<'py, PyAny>,
+    n_threads: Option<usize>,
+    params: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    image_votes_with(&core_forest(forest)?, depth, K, n_threads, params)
+}
+
+/// Mode finding on given votes: `positions` (V, 3) float32 metres, `rotations` (V, 4) float32
+/// (w, x, y, z, any sign), `weights` (V,) float32 or None (all 1). Keyword parameters: those of
+/// `VoteParams`. Returns hypotheses as `predict` does.
+#[pyfunction]
+#[pyo3(signature = (positions, rotations, weights=None, *, n_threads=None, **params))]
+pub fn find_modes<'py>(
+    py: Python<'py>,
+    positions: &Bound<'py, PyAny>,
+    rotations: &Bound<'py, PyAny>,
+    weights: Option<&Bound<'py, PyAny>>,
+    n_threads: Option<usize>,
+    params: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyList>> {
+    let mut p = VoteParams::default();
+    p.overlay(&kwargs_json(params)?, KWARGS).map_err(to_py)?;
+    let pos = array::<f32>(positions, "positions", "float32", &[None, Some(3)])?;
+    let n = pos.shape()[0];
+    let rot = array::<f32>(rotations, "rotations", "float32", &[Some(n), Some(4)])?;
+    let wts = given(weights)
+        .map(|w| array::<f32>(w, "weights", "float32", &[Some(n)]))
+        .transpose()?;
+    let ps = as_slice(&pos, "positions")?;
+    let rs = as_slice(&rot, "rotations")?;
+    check_finite(ps, "positions", 3)?;
+    check_finite(rs, "rotations", 4)?;
+    let ws = wts.as_ref().map(|w| as_slice(w, "weights")).transpose()?;
+    let votes: Vec<PoseVote> = (0..n)
+        .map(|i| PoseVote {
+            position: [ps[3 * i], ps[3 * i + 1], ps[3 * i + 2]],
+            rotation: [rs[4 * i], rs[4 * i + 1], rs[4 * i + 2], rs[4 * i + 3]],
+            weight: ws.map_or(1.0, |w| w[i]),
+        })
+        .collect();
+    if n_threads == Some(0) {
+        return Err(param_err(
+            "n_threads must be at least 1 (or None for all cores)",
+        ));
+    }
+    let hyps = py
+        .detach(|| isa_core::forest::with_threads(n_threads, || core_vote::find_modes(&votes, &p))?)
+        .map_err(to_py)?;
+    hypothesis::to_list(py, hyps)
+}
+
+/// Default inference parameters as a dict (image-level keys plus the vote keys, flat): the
+/// same as `PREDICT_DEFAULTS`.
+#[pyfunction]
+pub fn default_predict_params(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+    crate::params::json_to_py(py, &serde_json::Value::Object(PredictParams::default().to_flat_json()))
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(predict, m)?)?;
+    m.add_function(wrap_pyfunction!(image_votes, m)?)?;
+    m.add_function(wrap_pyfunction!(find_modes, m)?)?;
+    m.add_function(wrap_pyfunction!(default_predict_params, m)?)?;
+    Ok(())
+}
