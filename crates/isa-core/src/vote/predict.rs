@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{find_modes_valid, Hypothesis, PoseVote};
 use crate::params::{PredictParams, Valid};
-use crate::depth::{sample_parts, DepthStore, ImageRef, Part};
+use crate::depth::{sample_parts, DepthStore, Part};
 use crate::error::{IsaError, Result};
 use crate::forest::flat::leaves_batched;
 #[cfg(test)]
