@@ -53,7 +53,7 @@ __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
     "cli": [
         "main",
     ],
-    "shapes": ["ShapeLibrary", "shape_library"],
+    "shapes": ["ShapeLibrary", "shape_library", "bop_shape_library"],
     "verify": ["VerifyParams", "Verification", "DepthEvidence", "verify_pose"],
     "refine": ["RefineParams", "Refinement", "refine_pose", "upright_points"],
     "gravity": ["GravityEstimate", "estimate_gravity"],

@@ -9,6 +9,7 @@ import numpy as np
 
 from isa.camera import Intrinsics
 from isa.exceptions import InvalidValueError
+from isa.render.noise import DEPTH_TOLERANCE
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,7 @@ class PlaneParams:
     score ``ransac_iterations`` wall hypotheses and ``check_samples`` to screen candidates before
     the test on every point; ``seed`` makes it reproducible."""
 
-    tolerance: tuple[float, float] = (0.03, 0.0045)
+    tolerance: tuple[float, float] = DEPTH_TOLERANCE
     min_floor_fraction: float = 0.03
     min_floor_drop: float = 0.3
     floor_search: float = 0.3

@@ -32,6 +32,7 @@ import numpy as np
 
 from isa.camera import Intrinsics
 from isa.exceptions import InvalidValueError
+from isa.render.noise import DEPTH_TOLERANCE
 
 __all__ = ["VerifyParams", "Verification", "DepthEvidence", "visible_points", "verify_pose", "verify_shapes"]
 
@@ -50,7 +51,7 @@ class VerifyParams:
     ``lateral_fraction``: the detector widens ``lateral`` to this fraction of the shape's
     diagonal (a bed's parts vary by more centimetres than a chair's)."""
 
-    tolerance: tuple[float, float] = (0.03, 0.0045)
+    tolerance: tuple[float, float] = DEPTH_TOLERANCE
     violation_weight: float = 1.0
     cell_spacing: float = 2.0
     min_cell_px: int = 2

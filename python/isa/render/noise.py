@@ -82,3 +82,8 @@ def apply_kinect_noise(
         drop |= jump & (rng.random((h, w)) < params.edge_drop)
     drop |= rng.random((h, w)) < params.dropout
     return np.where(drop, 0.0, z).astype(np.float32)
+
+
+#: Depth agreement tolerance (metres) at depth z: ``max(base, k * z**2)``, the Kinect v1 error envelope;
+#: shared by plane finding and hypothesis verification.
+DEPTH_TOLERANCE: tuple[float, float] = (0.03, 0.0045)
