@@ -63,10 +63,13 @@ def test_every_module_imports_without_old_paths_opengl_opencv_or_environment_cha
 
 def test_subpackage_import_is_light():
     code = ("import sys, isa.data, isa.render, isa.privileged, isa.forest, isa.detection, isa.evaluation, isa.report\n"
-            "print(sorted(m for m in sys.modules if m.startswith('isa.') and m.count('.') > 1))")
+            "print(sorted(m for m in sys.modules if m.startswith('isa.') and m.count('.') > 1\n"
+            "             and not m.startswith('isa._core.')))")
     r = _run(code)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.strip() == "[]"  # no module of any subpackage loaded until a name is used
+    # No module of any subpackage loaded until a name is used (the compiled core's own
+    # submodules, _errors and _testing, are registered with it and cost nothing).
+    assert r.stdout.strip() == "[]"
 
 
 def test_subpackages_re_export_their_modules_names():

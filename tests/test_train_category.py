@@ -13,6 +13,7 @@ import trimesh
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+from isa import _core
 from isa.data.procedural import generate
 from isa.exceptions import DataError
 from isa.forest import build
@@ -53,7 +54,8 @@ def test_folder_of_obj_and_ply_trains_a_model_that_finds_an_instance(mesh_folder
     assert meta["training"]["instances"] == [str(mesh_folder / f"chair_{i}.{e}") for i, e in enumerate(["obj", "obj", "ply"])]
     assert meta["training"]["template"] == "instances" and meta["training"]["views"] == 16
     assert meta["box"]["size"][2] == pytest.approx(0.9, abs=1e-6)  # every instance 0.9 m tall
-    assert "position_bandwidth" in meta["predict_defaults"]
+    # The size-aware inference defaults are the model's own, not the core's generic ones.
+    assert forest.predict_defaults["position_bandwidth"] != _core.PREDICT_DEFAULTS["position_bandwidth"]
 
     # Truth from the file itself: scaled to 0.9 m tall, origin at its box centre (--centre box).
     mesh = trimesh.load(mesh_folder / "chair_2.ply", process=False)

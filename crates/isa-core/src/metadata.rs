@@ -49,15 +49,24 @@ pub struct CategoryBox {
     pub extra: Map<String, Value>,
 }
 
-/// The training data of a forest, as counts.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+/// What a forest was trained on: the data's counts (filled by
+/// [`Forest::fit`](crate::Forest::fit)) beside the trainer's own description (instances, views,
+/// stride, seed, ...: free-form keys, kept as written).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TrainingSummary {
+    #[serde(default)]
     pub n_parts: usize,
+    #[serde(default)]
     pub n_images: usize,
     /// Columns of the link angles (0 without Q2 data).
+    #[serde(default)]
     pub link_angle_dims: usize,
     /// Columns of the node offsets (0 without Q3 data).
+    #[serde(default)]
     pub node_offset_dims: usize,
+    /// The trainer's description.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
 }
 
 /// Key of the legacy inference defaults inside metadata JSON.

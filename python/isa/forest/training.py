@@ -66,7 +66,7 @@ def scaled_params(params: ForestParams, ts: TrainingSet, fx: float) -> ForestPar
 
 
 def scaled_predict_defaults(ts: TrainingSet) -> dict:
-    """Inference defaults stored in a model's metadata (``predict_defaults``), read by :meth:`isa.forest.model.Forest.predict`."""
+    """Size-aware inference defaults, stored as the model's ``predict_defaults`` and applied by its ``predict``."""
     return {"position_bandwidth": round(VOTE_BANDWIDTH * parts_diameter(ts), 4)}
 
 

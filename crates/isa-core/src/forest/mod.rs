@@ -151,7 +151,10 @@ impl Forest {
                     tree
                 })
                 .collect();
+            // The counts join whatever the trainer said about its data.
+            let extra = metadata.training.take().map(|t| t.extra).unwrap_or_default();
             metadata.training = Some(TrainingSummary {
+                extra,
                 n_parts: n,
                 n_images: data.store.len(),
                 link_angle_dims: data.targets.link_angles.map_or(0, |a| a.1),
