@@ -170,7 +170,9 @@ fn frames() -> &'static Frames {
             let pp = PredictParams {
                 stride,
                 ..Default::default()
-            };
+            }
+            .check()
+            .unwrap();
             let iv = vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
             eprintln!(
                 "{scene} 640x480 ({valid} valid pixels), stride {stride}: {} parts, {} votes ({} trees, {} nodes)",
@@ -241,7 +243,9 @@ fn cpu_report() {
             let pp = PredictParams {
                 stride,
                 ..Default::default()
-            };
+            }
+            .check()
+            .unwrap();
             let iv = vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
             let mut store = DepthStore::new();
             store.push(640, 480, f.depth(scene)).unwrap();
@@ -287,7 +291,9 @@ fn bench(c: &mut Criterion) {
         let pp = PredictParams {
             stride,
             ..Default::default()
-        };
+        }
+        .check()
+        .unwrap();
         c.bench_function(
             &format!("predict/640x480_{scene}_10trees_stride{stride}"),
             |b| {

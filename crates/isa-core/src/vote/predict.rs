@@ -465,10 +465,8 @@ mod tests {
             } else {
                 leaf_votes[1]
             };
-            for a in 0..3 {
-                assert!(
-                    (f64::from(vote.position[a]) - (x[a] + f64::from(lv.offset[a]))).abs() < 1e-5
-                );
+            for ((p, xa), o) in vote.position.iter().zip(x).zip(lv.offset) {
+                assert!((f64::from(*p) - (xa + f64::from(o))).abs() < 1e-5);
             }
             assert_eq!(vote.weight, lv.weight / 4.0);
         }
@@ -534,6 +532,7 @@ mod tests {
     }
 
     /// Trains a small forest on views of the synthetic chair; returns it with the intrinsics.
+    #[allow(clippy::type_complexity)] // a test fixture: forest, camera and the (R, t) of its views
     pub(crate) fn chair_forest() -> (Forest, Intrinsics, Vec<([[f64; 3]; 3], [f64; 3])>) {
         let k = Intrinsics {
             fx: 200.0,
