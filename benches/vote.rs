@@ -98,17 +98,16 @@ fn chair_forest() -> Forest {
         quality: Quality::Q1,
         ..Default::default()
     };
-    let targets = RawTargets {
-        offsets: &offsets,
-        rotations: &rotations,
-        link_angles: None,
-        node_offsets: None,
-    };
-    Forest::fit(&params.clone().check().unwrap(), &TrainingSet {
+    let targets = RawTargets::pose(&offsets, &rotations);
+    Forest::fit(
+        &params.clone().check().unwrap(),
+        &TrainingSet {
             store: &store,
             parts: &parts,
             targets,
-        }, Default::default(), None,
+        },
+        Default::default(),
+        None,
     )
     .unwrap()
 }

@@ -12,7 +12,9 @@
 
 use isa_core::criterion::RawTargets;
 use isa_core::vote::{self, synth, DepthImage, Hypothesis, Intrinsics, PredictParams};
-use isa_core::{sample_parts, DepthStore, Forest, ForestParams, ModelMetadata, Quality, TrainingSet};
+use isa_core::{
+    sample_parts, DepthStore, Forest, ForestParams, ModelMetadata, Quality, TrainingSet,
+};
 
 /// FNV-1a, 64 bits (written here so the test does not trust the crate's own hash).
 fn fnv1a(bytes: &[u8]) -> u64 {
@@ -110,7 +112,13 @@ fn train(d: &Data, quality: Quality) -> Forest {
         parts: &d.parts,
         targets,
     };
-    Forest::fit(&params.check().unwrap(), &set, ModelMetadata::default(), Some(2)).unwrap()
+    Forest::fit(
+        &params.check().unwrap(),
+        &set,
+        ModelMetadata::default(),
+        Some(2),
+    )
+    .unwrap()
 }
 
 /// A view between training views, shifted sideways, in a frame twice the size.

@@ -349,22 +349,13 @@ mod tests {
     use super::super::{quat_angle, synth};
     use super::*;
     use crate::criterion::RawTargets;
-    use crate::features::Feature;
     use crate::forest::TrainingSet;
     use crate::params::{ForestParams, Quality};
     use crate::tree::{Node, Tree, Vote};
 
     /// A forest of `n` one-leaf trees, each leaf voting `votes`.
     fn constant_forest(n: usize, votes: &[Vote]) -> Forest {
-        let leaf = Node {
-            feature: Feature {
-                u: [0.0; 2],
-                v: [0.0; 2],
-            },
-            threshold: 0.0,
-            child: 0,
-            is_leaf: true,
-        };
+        let leaf = Node::leaf(0);
         let tree = Tree {
             nodes: vec![leaf],
             leaf_offsets: vec![0, votes.len() as u32],
@@ -570,12 +561,7 @@ mod tests {
             min_samples_leaf: 3,
             ..Default::default()
         };
-        let targets = RawTargets {
-            offsets: &offsets,
-            rotations: &rotations,
-            link_angles: None,
-            node_offsets: None,
-        };
+        let targets = RawTargets::pose(&offsets, &rotations);
         let data = TrainingSet {
             store: &store,
             parts: &parts,
