@@ -45,7 +45,6 @@ def test_empty_training_set_is_a_data_error():
 
 
 def test_predict_reads_the_models_defaults_and_explicit_parameters_win():
-    from isa import _core
     from isa.camera import Intrinsics
     from isa.forest.model import Forest, ForestParams
     from test_vote import K, plate, plate_training_set
