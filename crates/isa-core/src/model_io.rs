@@ -24,7 +24,7 @@
 //! the checksum (corrupted), then every count against the bytes left before allocating and the
 //! tree structure (children after their parent and in range, leaf ids in range, vote ranges
 //! monotone, finite numbers), so any byte string gives a forest or [`IsaError::ModelFormat`],
-//! never a panic. Saving writes a temporary file next to the target, syncs it and renames it.
+//! never a panic. Saving is atomic ([`crate::atomic`]).
 //!
 //! Versions: 1 had no inference-defaults field and free-form metadata JSON, in which Python's
 //! pipeline kept them as `predict_defaults` (flat keys); such files still load, their
@@ -33,7 +33,6 @@
 //! added the field; the trees and votes are encoded as in version 1.
 
 use std::fs;
-use std::io::Write;
 use std::path::Path;
 
 use crate::error::{IsaError, Result};
@@ -364,40 +363,14 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
     decode_payload(payload, version).map_err(|r| err(format!("corrupted: {r}")))
 }
 
-/// Writes a forest atomically (temporary file in the same folder, fsync, rename).
+/// Writes a forest atomically ([`crate::atomic`]).
 pub fn save(forest: &Forest, path: &Path) -> Result<()> {
-    let bytes = encode(forest);
-    let io = |e: std::io::Error| IsaError::Io {
-        path: path.display().to_string(),
-        source: e,
-    };
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| IsaError::InvalidInput(format!("path {} names no file", path.display())))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let res = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(&bytes)?;
-        f.sync_all()?;
-        drop(f);
-        fs::rename(&tmp, path)
-    })();
-    if res.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    res.map_err(io)
+    crate::atomic::write_bytes(path, &encode(forest))
 }
 
 /// Reads a forest file.
 pub fn load(path: &Path) -> Result<Forest> {
+    crate::atomic::clean_stale(path);
     let bytes = fs::read(path).map_err(|e| IsaError::Io {
         path: path.display().to_string(),
         source: e,

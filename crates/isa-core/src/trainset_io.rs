@@ -31,7 +31,6 @@
 //! each array. Reading checks the magic, the version, the checksum, every length against the
 //! bytes left, dtypes, shapes and finiteness, so a bad file gives an error naming the entry.
 
-use std::io::Write;
 use std::path::Path;
 
 use crate::criterion::RawTargets;
@@ -514,30 +513,15 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
     Ok(ts)
 }
 
-/// Validates and writes a training set (atomically: a temporary file, synced, then renamed).
+/// Validates and writes a training set atomically ([`crate::atomic`]).
 pub fn write(ts: &TrainSetData, path: &Path) -> Result<()> {
     ts.validate()?;
-    let bytes = encode(ts);
-    let io = |source| IsaError::Io {
-        path: path.display().to_string(),
-        source,
-    };
-    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-    let res = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(&bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = res {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io(e));
-    }
-    Ok(())
+    crate::atomic::write_bytes(path, &encode(ts))
 }
 
 /// Reads and validates a training set.
 pub fn read(path: &Path) -> Result<TrainSetData> {
+    crate::atomic::clean_stale(path);
     let bytes = std::fs::read(path).map_err(|source| IsaError::Io {
         path: path.display().to_string(),
         source,
