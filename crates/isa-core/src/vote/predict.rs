@@ -380,6 +380,58 @@ mod tests {
         }
     }
 
+    /// Issue 20: huge feature offsets panicked with integer overflow where overflow checks are
+    /// on (this test profile). The largest values a model file may hold, and ±3e38 in a forest
+    /// built in memory (a file refuses them), on the nearest depth (1 mm: the largest pixel
+    /// steps) and the farthest, predict finite poses without a panic.
+    #[test]
+    fn extreme_models_predict_without_overflow() {
+        use crate::criterion::MAX_TARGET_OFFSET;
+        use crate::features::MAX_FEATURE_OFFSET;
+        let make = |m: f32, o: f32| {
+            let vote = |s: f32| Vote {
+                weight: 1.0,
+                offset: [s * o, -s * o, o],
+                rotation: [0.0, 0.0, 0.6, 0.8],
+            };
+            let split = Node {
+                feature: Feature { u: [m, -m], v: [-m, m] },
+                threshold: -f32::MAX,
+                child: 1,
+                is_leaf: false,
+            };
+            let leaf = |l: u32| Node {
+                feature: Feature { u: [0.0; 2], v: [0.0; 2] },
+                threshold: 0.0,
+                child: l,
+                is_leaf: true,
+            };
+            let mut forest = constant_forest(2, &[vote(1.0)]);
+            forest.params.n_trees = 2;
+            forest.trees[0] = Tree {
+                nodes: vec![split, leaf(0), leaf(1)],
+                leaf_offsets: vec![0, 1, 2],
+                votes: vec![vote(1.0), vote(-1.0)],
+            };
+            forest
+        };
+        let at_bounds = Forest::from_bytes(&make(MAX_FEATURE_OFFSET, MAX_TARGET_OFFSET).to_bytes()).unwrap();
+        let huge = make(3e38, 3e38);
+        assert!(Forest::from_bytes(&huge.to_bytes()).is_err());
+        let (w, h) = (40usize, 30usize);
+        let depth: Vec<u16> = (0..w * h).map(|i| [1u16, 65535, 0, 7][i % 4]).collect();
+        let img = DepthImage::new(&depth, w, h).unwrap();
+        let k = Intrinsics { fx: 1e-3, fy: 1e6, cx: -1e4, cy: 1e4 };
+        let p = PredictParams { stride: 1, ..Default::default() }.check().unwrap();
+        for forest in [at_bounds, huge] {
+            let hyps = predict(&forest, &img, &k, &p).unwrap();
+            assert!(!hyps.is_empty());
+            for hy in &hyps {
+                assert!(hy.translation.iter().chain(&hy.quaternion).all(|v| v.is_finite()), "{hy:?}");
+            }
+        }
+    }
+
     const K: Intrinsics = Intrinsics {
         fx: 100.0,
         fy: 110.0,
