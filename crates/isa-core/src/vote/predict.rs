@@ -79,6 +79,21 @@ impl Intrinsics {
         Ok(())
     }
 
+    /// [`validate`](Self::validate), and the principal point inside a `width x height` image
+    /// (pixel centres at integers, so within `[-0.5, size - 0.5]`): outside it, the image and
+    /// the intrinsics do not belong together.
+    pub fn validate_for(&self, width: usize, height: usize) -> Result<()> {
+        self.validate()?;
+        let (w, h) = (width as f64, height as f64);
+        if !(self.cx >= -0.5 && self.cy >= -0.5 && self.cx <= w - 0.5 && self.cy <= h - 0.5) {
+            return Err(IsaError::InvalidInput(format!(
+                "intrinsics: principal point ({}, {}) lies outside the {width}x{height} (width x height) image: wrong intrinsics for this image",
+                self.cx, self.cy
+            )));
+        }
+        Ok(())
+    }
+
     /// 3D point (camera frame, metres) of pixel `(u, v)` at depth `z` metres.
     #[inline]
     pub fn back_project(&self, u: f64, v: f64, z: f64) -> [f64; 3] {
@@ -322,7 +337,7 @@ pub fn image_votes(
     k: &Intrinsics,
     params: &Valid<PredictParams>,
 ) -> Result<ImageVotes> {
-    k.validate()?;
+    k.validate_for(depth.width, depth.height)?;
     let (store, parts) = parts_of(depth, params)?;
     Ok(collect_votes(forest, &store, &parts, k, params, true))
 }
@@ -337,7 +352,7 @@ pub fn predict(
     k: &Intrinsics,
     params: &Valid<PredictParams>,
 ) -> Result<Vec<Hypothesis>> {
-    k.validate()?;
+    k.validate_for(depth.width, depth.height)?;
     let (store, parts) = parts_of(depth, params)?;
     let votes = collect_votes(forest, &store, &parts, k, params, false);
     // Leaf votes are finite (model files are validated) and so are back-projected pixels.
@@ -421,7 +436,7 @@ mod tests {
         let (w, h) = (40usize, 30usize);
         let depth: Vec<u16> = (0..w * h).map(|i| [1u16, 65535, 0, 7][i % 4]).collect();
         let img = DepthImage::new(&depth, w, h).unwrap();
-        let k = Intrinsics { fx: 1e-3, fy: 1e6, cx: -1e4, cy: 1e4 };
+        let k = Intrinsics { fx: 1e-3, fy: 1e6, cx: -0.5, cy: 29.5 };
         let p = PredictParams { stride: 1, ..Default::default() }.check().unwrap();
         for forest in [at_bounds, huge] {
             let hyps = predict(&forest, &img, &k, &p).unwrap();
