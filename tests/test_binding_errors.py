@@ -95,7 +95,9 @@ def test_negative_counts_and_indices(fitted):
 
 
 def test_unknown_forest_parameter_is_an_isa_error():
-    _raises(ValueError, lambda: Forest(foo=1), "foo")
+    # TypeError like any unexpected keyword argument (the core's own Forest: a parameter error).
+    _raises(TypeError, lambda: Forest(foo=1), "foo")
+    _raises(ValueError, lambda: _core.Forest(foo=1), "foo")
     assert issubclass(InvalidParameterError, IsaError)
 
 

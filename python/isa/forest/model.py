@@ -29,7 +29,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from isa import _core
-from isa.exceptions import InvalidParameterError
+from isa.exceptions import InvalidParameterError, InvalidTypeError
 
 QUALITIES = ("Q1", "Q1+Q2", "Q1+Q3", "Q1+Q2+Q3")
 
@@ -114,7 +114,8 @@ class Forest:
         unknown = sorted(set(kwargs) - {f.name for f in fields(ForestParams)})
         if unknown:
             known = ", ".join(f.name for f in fields(ForestParams))
-            raise InvalidParameterError(f"Forest: unknown parameter(s) {', '.join(unknown)} (known: {known})")
+            # TypeError as for any unexpected keyword argument, and an isa error.
+            raise InvalidTypeError(f"Forest: unknown parameter(s) {', '.join(unknown)} (known: {known})")
         self.params = params if params is not None else ForestParams(**kwargs)
         self._core = _core.Forest(n_threads=n_threads, **self.params._core_kwargs())
 
