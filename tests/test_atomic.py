@@ -12,25 +12,12 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from isa import _core, atomic
 from isa.exceptions import IsaFileNotFoundError
 from isa.forest.model import Forest
-
-PARAMS = dict(n_trees=2, max_depth=6, min_samples_split=4, min_samples_leaf=2, n_candidates=10, max_offset=25.0,
-              quality="Q1", vote_bandwidth_offset=0.02)
-
-
-def _set(seed: int, size: int = 24):
-    rng = np.random.default_rng(seed)
-    images = [(1000 + rng.integers(0, 300, (size, size))).astype(np.uint16) for _ in range(2)]
-    parts = _core.sample_parts(images, stride=2)
-    off = rng.normal(0, 0.05, (len(parts), 3)).astype(np.float32)
-    q = rng.normal(size=(len(parts), 4))
-    rot = (q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32)
-    return images, parts, off, rot
+from test_binding_errors import PARAMS, _set
 
 
 @pytest.fixture(scope="module")

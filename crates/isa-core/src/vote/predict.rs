@@ -371,17 +371,8 @@ mod tests {
 
     /// A forest of `n` one-leaf trees, each leaf voting `votes`.
     fn constant_forest(n: usize, votes: &[Vote]) -> Forest {
-        let leaf = Node {
-            feature: Feature {
-                u: [0.0; 2],
-                v: [0.0; 2],
-            },
-            threshold: 0.0,
-            child: 0,
-            is_leaf: true,
-        };
         let tree = Tree {
-            nodes: vec![leaf],
+            nodes: vec![Node::leaf(0)],
             leaf_offsets: vec![0, votes.len() as u32],
             votes: votes.to_vec(),
         };
@@ -415,16 +406,10 @@ mod tests {
                 child: 1,
                 is_leaf: false,
             };
-            let leaf = |l: u32| Node {
-                feature: Feature { u: [0.0; 2], v: [0.0; 2] },
-                threshold: 0.0,
-                child: l,
-                is_leaf: true,
-            };
             let mut forest = constant_forest(2, &[vote(1.0)]);
             forest.params.n_trees = 2;
             forest.trees[0] = Tree {
-                nodes: vec![split, leaf(0), leaf(1)],
+                nodes: vec![split, Node::leaf(0), Node::leaf(1)],
                 leaf_offsets: vec![0, 1, 2],
                 votes: vec![vote(1.0), vote(-1.0)],
             };
