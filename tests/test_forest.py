@@ -232,8 +232,9 @@ def test_bad_parameters():
                {"min_samples_split": 2, "min_samples_leaf": 5}, {"n_thresholds": 0}, {"max_depth": 1.5}):
         with pytest.raises(InvalidParameterError):
             Forest(**kw)
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="bogus") as e:
         Forest(bogus=1)
+    assert isinstance(e.value, IsaError)
     with pytest.raises(InvalidParameterError, match="bogus"):
         _core.Forest(bogus=1)
     with pytest.raises(InvalidParameterError, match="n_threads"):

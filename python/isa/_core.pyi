@@ -28,6 +28,9 @@ class IsaError(Exception):
 class InvalidInputError(IsaError, ValueError):
     """An argument has the wrong dtype, shape, layout or value (the message names it)."""
 
+class InvalidTypeError(InvalidInputError, TypeError):
+    """An argument has the wrong type (the message names it)."""
+
 class InvalidParameterError(IsaError, ValueError):
     """A hyper-parameter failed validation (the message names it)."""
 
@@ -116,10 +119,10 @@ class Forest:
     def to_bytes(self) -> bytes:
         """The model-file bytes."""
     @staticmethod
-    def from_bytes(data: bytes) -> Forest:
+    def from_bytes(data: bytes | bytearray | memoryview) -> Forest:
         """Parses model-file bytes (``ModelFormatError`` if invalid)."""
     def __getstate__(self) -> bytes: ...
-    def __setstate__(self, state: bytes) -> None: ...
+    def __setstate__(self, state: bytes | bytearray | memoryview) -> None: ...
     def apply(self, images: list[npt.NDArray[np.uint16]], parts: npt.NDArray[np.int32]) -> npt.NDArray[np.int32]:
         """Leaf index of every part in every tree: (P, n_trees) int32 (GIL released)."""
     def votes(self, images: list[npt.NDArray[np.uint16]], parts: npt.NDArray[np.int32]) -> dict[str, np.ndarray]:

@@ -14,8 +14,9 @@ class is also the matching builtin, so ``except ValueError`` / ``except OSError`
   or in the wrong layout.
 * ``DataNotFoundError`` (also ``FileNotFoundError``, Python side) — a data file or folder is missing.
 
-The Python side's own argument checks raise ``InvalidValueError`` / ``InvalidTypeError``
-(``InvalidInputError`` that is also ``ValueError`` / ``TypeError``), ``MissingDependencyError``
+Argument checks raise ``InvalidValueError`` / ``InvalidTypeError`` (``InvalidInputError`` that
+is also ``ValueError`` / ``TypeError``; ``InvalidTypeError`` is defined in ``isa._core``, which
+raises it for an argument of the wrong type), ``MissingDependencyError``
 (also ``ImportError``) for an optional dependency that is not installed, and ``UsageError`` (also
 ``RuntimeError``) for an object used in a state that forbids it.
 """
@@ -25,6 +26,7 @@ from __future__ import annotations
 from isa._core import (
     InvalidInputError,
     InvalidParameterError,
+    InvalidTypeError,
     IsaError,
     IsaFileNotFoundError,
     IsaIOError,
@@ -44,10 +46,6 @@ class DataNotFoundError(DataError, FileNotFoundError):
 
 class InvalidValueError(InvalidInputError, ValueError):
     """An argument checked on the Python side has the wrong value or shape (names the argument)."""
-
-
-class InvalidTypeError(InvalidInputError, TypeError):
-    """An argument checked on the Python side has the wrong type (names the argument)."""
 
 
 class MissingDependencyError(IsaError, ImportError):

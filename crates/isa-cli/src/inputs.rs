@@ -226,7 +226,7 @@ pub fn check_size(
             )));
         }
     }
-    if k.cx < -0.5 || k.cy < -0.5 || k.cx > d.width as f64 - 0.5 || k.cy > d.height as f64 - 0.5 {
+    if k.validate_for(d.width, d.height).is_err() {
         return Err(CliError::input(format!(
             "depth image {} is {}x{} (width x height), but the principal point ({}, {}) of {source} lies outside it: wrong-size image for these intrinsics",
             d.path.display(),

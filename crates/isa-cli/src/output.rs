@@ -21,14 +21,20 @@ pub struct ImageResult {
     pub seconds: f64,
 }
 
-/// Writes `text` to `path`, or to standard output.
+/// Writes `text` to `path` atomically (the old file or the new one, whole), or to standard
+/// output; a closed standard output (the reader is gone, as `| head`) is not an error.
 pub fn write(path: Option<&Path>, text: &str) -> CliResult<()> {
     match path {
-        Some(path) => std::fs::write(path, text).map_err(|e| CliError::io(path, e)),
-        None => std::io::stdout()
-            .lock()
-            .write_all(text.as_bytes())
-            .map_err(|e| CliError::io(Path::new("<stdout>"), e)),
+        Some(path) => Ok(isa_core::atomic::write_bytes(path, text.as_bytes())?),
+        None => {
+            let mut out = std::io::stdout().lock();
+            match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+                Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                    Err(CliError::io(Path::new("<stdout>"), e))
+                }
+                _ => Ok(()),
+            }
+        }
     }
 }
 

@@ -546,3 +546,111 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     assert_eq!(o.status.code(), Some(5));
     assert!(stderr(&o).contains("PNG"), "{}", stderr(&o));
 }
+
+/// Issue 20: `isa inspect model | head` panicked on the closed pipe (exit 101).
+#[test]
+fn a_closed_stdout_ends_quietly() {
+    use std::process::Stdio;
+    let m = model().to_str().unwrap();
+    for args in [vec!["inspect", m], vec!["inspect", m, "--json"]] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_isa"))
+            .args(&args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take()); // the reader is gone before the first byte
+        let o = child.wait_with_output().unwrap();
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
+    }
+    // A closed standard error does not panic either (the error message is dropped).
+    let o = Command::new(env!("CARGO_BIN_EXE_isa"))
+        .args(["inspect", "/nonexistent/model.isaf"])
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    assert_eq!(o.code(), Some(3));
+}
+
+#[test]
+fn unwritable_output_is_exit_3_naming_it_and_leaves_nothing() {
+    let m = model().to_str().unwrap();
+    let png = tmp("unwritable.png");
+    write_png(&png, 160, 120, vec![1500; 160 * 120]);
+    let dir = tmp("unwritable-out");
+    std::fs::create_dir_all(&dir).unwrap();
+    for out in ["/nonexistent/dir/out.json".to_string(), dir.display().to_string()] {
+        let o = isa(&["predict", m, png.to_str().unwrap(), "-k", "200", "200", "79.5", "59.5", "-q", "-o", &out]);
+        assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+        assert!(stderr(&o).contains(&out), "{}", stderr(&o));
+    }
+    let temps = std::fs::read_dir(dir.parent().unwrap())
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().contains(".isa-tmp-"))
+        .count();
+    assert_eq!(temps, 0, "no temporary file left");
+    let ts = tmp("chair.isat");
+    let o = train_q1(&ts, Path::new("/nonexistent/dir/m.isaf"), &[]);
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    assert!(stderr(&o).contains("/nonexistent/dir/m.isaf"), "{}", stderr(&o));
+}
+
+/// Issue 20: `--position-bandwidth nan` failed with a message naming no flag; `-k` could not
+/// take a negative number.
+#[test]
+fn number_flags_name_themselves_and_negative_numbers_parse() {
+    let m = model().to_str().unwrap();
+    let png = tmp("flags.png");
+    write_png(&png, 160, 120, vec![1500; 160 * 120]);
+    let p = png.to_str().unwrap();
+    for (flag, v) in [("--position-bandwidth", "nan"), ("--nms-radius", "inf"), ("--min-depth", "-inf")] {
+        let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", flag, v]);
+        assert_eq!(o.status.code(), Some(2), "{flag} {v}: {}", stderr(&o));
+        assert!(stderr(&o).contains(flag) && stderr(&o).contains("finite"), "{}", stderr(&o));
+    }
+    let ts = tmp("chair.isat");
+    let o = train_q1(&ts, &tmp("never.isaf"), &["--bag-fraction", "nan"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--bag-fraction"), "{}", stderr(&o));
+    // A negative principal point parses (clap took "-3" for a flag before) and is refused as
+    // outside the image: an input error naming the image.
+    let o = isa(&["predict", m, p, "-k", "200", "200", "-3", "59.5"]);
+    assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
+    assert!(stderr(&o).contains("principal point") && stderr(&o).contains("flags.png"), "{}", stderr(&o));
+    let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", "-q"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+}
+
+/// SIGINT while training: the process ends by the signal, the model file is the old one (or
+/// absent), and the next write leaves no temporary file.
+#[cfg(unix)]
+#[test]
+fn sigint_while_training_leaves_no_half_written_model() {
+    use std::os::unix::process::ExitStatusExt;
+    let ts = tmp("chair.isat");
+    model(); // writes the training set
+    let dir = tmp("sigint");
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("m.isaf");
+    std::fs::write(&out, b"old").unwrap();
+    for delay_ms in [50u64, 200, 400] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_isa"))
+            .args(["train", ts.to_str().unwrap(), "-o", out.to_str().unwrap(), "--quality", "Q1", "--quiet", "--n-trees", "30"])
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        let _ = Command::new("kill").args(["-INT", &child.id().to_string()]).status();
+        let st = child.wait().unwrap();
+        let bytes = std::fs::read(&out).unwrap();
+        if st.signal() == Some(2) {
+            assert_eq!(bytes, b"old");
+        } else {
+            assert!(st.success() && isa_core::Forest::from_bytes(&bytes).is_ok(), "{st:?}");
+            std::fs::write(&out, b"old").unwrap();
+        }
+    }
+    isa_core::atomic::write_bytes(&out, b"next").unwrap();
+    let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names, ["m.isaf"]);
+}

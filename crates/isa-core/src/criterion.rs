@@ -149,6 +149,11 @@ impl Targets {
     }
 }
 
+/// Largest SSC offset component (metres) accepted in training targets and in a model's votes:
+/// far beyond any object (offsets are within an object's extent), small enough that every
+/// position computed from it stays finite and exact to well under a millimetre in `f32`.
+pub const MAX_TARGET_OFFSET: f32 = 1e3;
+
 /// The raw per-part targets handed over by Python (see DESIGN.md, data contract).
 #[derive(Clone, Copy, Debug)]
 pub struct RawTargets<'a> {
@@ -177,7 +182,9 @@ impl<'a> RawTargets<'a> {
         self.offsets.len() / 3
     }
 
-    /// Checks shapes and finiteness; the error names the array at fault.
+    /// Checks shapes, finiteness, offsets within [`MAX_TARGET_OFFSET`] and unit rotations
+    /// (within [`UNIT_NORM_TOLERANCE`](crate::rotation::UNIT_NORM_TOLERANCE)); the error names
+    /// the array and row at fault.
     pub fn validate(&self) -> Result<()> {
         let n = self.n();
         let bad = |m: String| Err(IsaError::InvalidInput(m));
@@ -195,10 +202,21 @@ impl<'a> RawTargets<'a> {
         }
         check_finite("offsets", self.offsets, 3)?;
         check_finite("rotations", self.rotations, 4)?;
+        if let Some(k) = self.offsets.iter().position(|v| v.abs() > MAX_TARGET_OFFSET) {
+            return bad(format!(
+                "offsets[{}, {}] = {} is beyond ±{MAX_TARGET_OFFSET} m",
+                k / 3,
+                k % 3,
+                self.offsets[k]
+            ));
+        }
         for (i, q) in self.rotations.chunks_exact(4).enumerate() {
-            let nn = q.iter().map(|v| v * v).sum::<f32>();
-            if !(nn > 1e-12) {
-                return bad(format!("rotations[{i}]: zero quaternion"));
+            if !crate::rotation::is_unit(q) {
+                let norm = q.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
+                return bad(format!(
+                    "rotations[{i}] has norm {norm:.6}: expected a unit quaternion (w, x, y, z) within {}",
+                    crate::rotation::UNIT_NORM_TOLERANCE
+                ));
             }
         }
         for (name, arr) in [

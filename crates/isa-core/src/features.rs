@@ -17,6 +17,11 @@ use serde::{Deserialize, Serialize};
 use crate::depth::{DepthStore, ImageRef, Part};
 use crate::probe::probe;
 
+/// Largest feature offset component (pixel·metres): the bound of `ForestParams::max_offset`
+/// and of every split feature a model file may hold. Probes at this offset land far outside
+/// any image and stay exact in integer pixel arithmetic.
+pub const MAX_FEATURE_OFFSET: f32 = 1e5;
+
 /// Depth (mm) read by a probe outside the image or on a pixel with missing depth.
 pub const BACKGROUND_MM: f32 = 10_000.0;
 

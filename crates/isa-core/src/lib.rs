@@ -14,10 +14,11 @@
 //!   gather, position modes, NMS, rotation modes);
 //! * shared: [`rotation`] (quaternions and matrices on nalgebra), [`rng`] (seeding),
 //!   [`params`] (every parameter set, validated once, one JSON overlay), [`metadata`] (what a
-//!   model says about itself), [`model_io`] (model files), [`error`].
+//!   model says about itself), [`model_io`] (model files), [`atomic`] (whole-or-nothing file writes), [`error`].
 //!
 //! Dependencies run one way: `vote` uses `forest`, `forest` never uses `vote`.
 
+pub mod atomic;
 pub mod criterion;
 pub mod depth;
 pub mod error;

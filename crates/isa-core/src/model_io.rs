@@ -22,9 +22,13 @@
 //! ```
 //! Decoding checks the magic (foreign file), the version (newer file), the length (truncated),
 //! the checksum (corrupted), then every count against the bytes left before allocating and the
-//! tree structure (children after their parent and in range, leaf ids in range, vote ranges
-//! monotone, finite numbers), so any byte string gives a forest or [`IsaError::ModelFormat`],
-//! never a panic. Saving writes a temporary file next to the target, syncs it and renames it.
+//! tree structure and values ([`Tree::validate`]: children after their parent and in range,
+//! leaf ids in range, vote ranges monotone; finite thresholds, feature offsets within
+//! ±[`MAX_FEATURE_OFFSET`](crate::features::MAX_FEATURE_OFFSET) pixel·metres, vote weights in
+//! [0, 1], vote offsets within ±[`MAX_TARGET_OFFSET`](crate::criterion::MAX_TARGET_OFFSET) m,
+//! unit vote rotations within
+//! [`UNIT_NORM_TOLERANCE`](crate::rotation::UNIT_NORM_TOLERANCE)), so any byte string gives a
+//! forest that predicts finite poses or [`IsaError::ModelFormat`], never a panic. Saving is atomic ([`crate::atomic`]).
 //!
 //! Versions: 1 had no inference-defaults field and free-form metadata JSON, in which Python's
 //! pipeline kept them as `predict_defaults` (flat keys); such files still load, their
@@ -33,7 +37,6 @@
 //! added the field; the trees and votes are encoded as in version 1.
 
 use std::fs;
-use std::io::Write;
 use std::path::Path;
 
 use crate::error::{IsaError, Result};
@@ -259,38 +262,13 @@ pub fn decode_payload(payload: &[u8], version: u32) -> R<Forest> {
                 rotation,
             });
         }
-        // Structure.
-        let mut leaf_seen = vec![false; n_leaves];
-        for (i, n) in nodes.iter().enumerate() {
-            if n.is_leaf {
-                let l = n.child as usize;
-                if l >= n_leaves || leaf_seen[l] {
-                    return Err(format!(
-                        "tree {ti}: node {i} names leaf {l} (have {n_leaves}, or used twice)"
-                    ));
-                }
-                leaf_seen[l] = true;
-            } else {
-                let c = n.child as usize;
-                if c <= i || c + 1 >= n_nodes {
-                    return Err(format!(
-                        "tree {ti}: node {i} has children {c}, {} out of order/range",
-                        c + 1
-                    ));
-                }
-            }
-        }
-        if leaf_offsets[0] != 0
-            || leaf_offsets.windows(2).any(|w| w[0] > w[1])
-            || *leaf_offsets.last().unwrap() as usize != n_votes
-        {
-            return Err(format!("tree {ti}: leaf vote ranges are inconsistent"));
-        }
-        trees.push(Tree {
+        let tree = Tree {
             nodes,
             leaf_offsets,
             votes,
-        });
+        };
+        tree.validate().map_err(|e| format!("tree {ti}: {e}"))?;
+        trees.push(tree);
     }
     if r.left() != 0 {
         return Err(format!("{} unexpected bytes after the last tree", r.left()));
@@ -364,40 +342,14 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
     decode_payload(payload, version).map_err(|r| err(format!("corrupted: {r}")))
 }
 
-/// Writes a forest atomically (temporary file in the same folder, fsync, rename).
+/// Writes a forest atomically ([`crate::atomic`]).
 pub fn save(forest: &Forest, path: &Path) -> Result<()> {
-    let bytes = encode(forest);
-    let io = |e: std::io::Error| IsaError::Io {
-        path: path.display().to_string(),
-        source: e,
-    };
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| IsaError::InvalidInput(format!("path {} names no file", path.display())))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let res = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(&bytes)?;
-        f.sync_all()?;
-        drop(f);
-        fs::rename(&tmp, path)
-    })();
-    if res.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    res.map_err(io)
+    crate::atomic::write_bytes(path, &encode(forest))
 }
 
 /// Reads a forest file.
 pub fn load(path: &Path) -> Result<Forest> {
+    crate::atomic::clean_stale(path);
     let bytes = fs::read(path).map_err(|e| IsaError::Io {
         path: path.display().to_string(),
         source: e,
@@ -568,6 +520,38 @@ mod tests {
         assert_eq!(g.predict_defaults, f.predict_defaults);
         assert_eq!(g.metadata, f.metadata);
         assert_eq!(g.metadata.training.unwrap().n_parts, f.metadata.training.unwrap().n_parts);
+    }
+
+    /// Issue 20: a zero vote quaternion (valid checksum) loaded and predicted NaN rotations;
+    /// negative weights and huge offsets loaded too.
+    #[test]
+    fn semantically_bad_values_are_refused_on_load() {
+        let f = small_forest();
+        let split = f.trees[0].nodes.iter().position(|n| !n.is_leaf).unwrap();
+        type Edit = fn(&mut Tree, usize);
+        let cases: [(Edit, &str); 8] = [
+            (|t, _| t.votes[0].rotation = [0.0; 4], "rotation"),
+            (|t, _| t.votes[0].rotation = [5.0, 0.0, 0.0, 0.0], "rotation"),
+            (|t, _| t.votes[0].rotation = [1e30, 0.0, 0.0, 0.0], "rotation"),
+            (|t, _| t.votes[0].weight = -0.25, "weight"),
+            (|t, _| t.votes[0].weight = 2.0, "weight"),
+            (|t, _| t.votes[0].offset[1] = 3e38, "offset"),
+            (|t, s| t.nodes[s].feature.u[0] = 3e38, "feature offsets"),
+            (|t, s| t.nodes[s].feature.v[1] = -1.5e5, "feature offsets"),
+        ];
+        for (edit, what) in cases {
+            let mut g = f.clone();
+            edit(&mut g.trees[0], split);
+            let e = decode(&encode(&g), "bad.isa").unwrap_err().to_string();
+            assert!(e.contains("bad.isa") && e.contains("tree 0") && e.contains(what), "{e}");
+        }
+        // At the bounds: accepted.
+        let mut g = f.clone();
+        g.trees[0].nodes[split].feature.u = [crate::features::MAX_FEATURE_OFFSET, -crate::features::MAX_FEATURE_OFFSET];
+        g.trees[0].votes[0].offset = [crate::criterion::MAX_TARGET_OFFSET; 3];
+        g.trees[0].votes[0].weight = 0.0;
+        g.trees[0].votes[0].rotation = [0.0, 0.0, 0.0, 1.0005];
+        assert_eq!(decode(&encode(&g), "edge").unwrap(), g);
     }
 
     proptest! {

@@ -14,6 +14,18 @@
 
 use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion};
 
+/// How far a quaternion's norm may be from 1 where a unit quaternion is required (training
+/// rotations, a model's vote rotations): float32 data normalised in any precision is within
+/// 1e-6; a norm off by more is a bug or a foreign value, not rounding.
+pub const UNIT_NORM_TOLERANCE: f32 = 1e-3;
+
+/// Whether `q` (4 finite-or-not values) is a unit quaternion within [`UNIT_NORM_TOLERANCE`]
+/// (in `f64`, so huge components cannot overflow the check).
+pub fn is_unit(q: &[f32]) -> bool {
+    let n = q.iter().map(|&v| f64::from(v) * f64::from(v)).sum::<f64>().sqrt();
+    (n - 1.0).abs() <= f64::from(UNIT_NORM_TOLERANCE)
+}
+
 /// `(w, x, y, z)` as nalgebra's (non-unit) quaternion.
 #[inline]
 fn quaternion(q: [f64; 4]) -> Quaternion<f64> {

@@ -26,12 +26,14 @@
 //! | `node_offsets` | npy, optional | float32 `(P, 3N)` | skeleton node offsets (du px, dv px, dz m) (Q3) |
 //! | `metadata` | text, optional | JSON | opaque; copied into the model file (category, SSC, ...) |
 //!
-//! Other entry names are ignored by this version (room for additions). In Python without
-//! `isa._core`: `struct` for the framing and `numpy.lib.format.read_array(io.BytesIO(b))` for
-//! each array. Reading checks the magic, the version, the checksum, every length against the
-//! bytes left, dtypes, shapes and finiteness, so a bad file gives an error naming the entry.
+//! Other entry names are skipped unread by this version, whatever their kind or dtype (room for
+//! additions). In Python without `isa._core`: `struct` for the framing and
+//! `numpy.lib.format.read_array(io.BytesIO(b))` for each array. Reading checks the magic, the
+//! version, the checksum, every length against the bytes left, that nothing follows the last
+//! entry, dtypes, shapes, finiteness and values (`TrainSetData::validate`: rotations unit
+//! within 1e-3, offsets within ±1e3 m, parts inside their image on depth > 0), so a bad file
+//! gives an error naming the entry.
 
-use std::io::Write;
 use std::path::Path;
 
 use crate::criterion::RawTargets;
@@ -42,6 +44,17 @@ use crate::model_io::fnv1a64;
 
 pub const MAGIC: &[u8; 8] = b"ISATRAIN";
 pub const FORMAT_VERSION: u32 = 1;
+
+/// The array entries this version reads (every other name is skipped, whatever its kind).
+const ARRAY_ENTRIES: [&str; 7] = [
+    "image_sizes",
+    "depth",
+    "parts",
+    "offsets",
+    "rotations",
+    "link_angles",
+    "node_offsets",
+];
 
 /// The contents of a training-set file, owned.
 #[derive(Clone, Debug, Default)]
@@ -331,18 +344,26 @@ pub fn encode(ts: &TrainSetData) -> Vec<u8> {
         entries.push(("node_offsets", Entry::Npy(npy_encode(a, &[p, *w]))));
     }
     entries.push(("metadata", Entry::Text(ts.metadata.clone())));
+    let framed: Vec<(&str, u8, &[u8])> = entries
+        .iter()
+        .map(|(name, e)| match e {
+            Entry::Npy(b) => (*name, 0, b.as_slice()),
+            Entry::Text(s) => (*name, 1, s.as_bytes()),
+        })
+        .collect();
+    container(&framed)
+}
+
+/// The file framing (magic, version, entries `(name, kind, bytes)`, checksum).
+fn container(entries: &[(&str, u8, &[u8])]) -> Vec<u8> {
     let mut out = Vec::new();
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&(entries.len() as u32).to_le_bytes());
-    for (name, e) in &entries {
+    for (name, kind, bytes) in entries {
         out.extend_from_slice(&(name.len() as u32).to_le_bytes());
         out.extend_from_slice(name.as_bytes());
-        let (kind, bytes): (u8, &[u8]) = match e {
-            Entry::Npy(b) => (0, b),
-            Entry::Text(s) => (1, s.as_bytes()),
-        };
-        out.push(kind);
+        out.push(*kind);
         out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
         out.extend_from_slice(bytes);
     }
@@ -397,7 +418,10 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
         let len = u64::from_le_bytes(take(8, &name)?.try_into().unwrap());
         let len = usize::try_from(len).map_err(|_| bad(format!("entry {name}: too long")))?;
         let data = take(len, &name)?;
-        if arrays.iter().any(|(n, _)| *n == name) || (name == "metadata" && metadata.is_some()) {
+        let known_array = ARRAY_ENTRIES.contains(&name.as_str());
+        if (known_array && arrays.iter().any(|(n, _)| *n == name))
+            || (name == "metadata" && metadata.is_some())
+        {
             return Err(bad(format!("entry {name} appears twice")));
         }
         match (kind, name.as_str()) {
@@ -407,13 +431,25 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
                         .map_err(|_| bad("entry metadata: not UTF-8".into()))?,
                 )
             }
-            (0, _) => arrays.push((
+            (0, _) if known_array => arrays.push((
                 name.clone(),
                 npy_decode(data).map_err(|e| bad(format!("entry {name}: {e}")))?,
             )),
-            (1, _) => {}
-            (other, _) => return Err(bad(format!("entry {name}: unknown kind {other}"))),
+            (k, "metadata") => {
+                return Err(bad(format!("entry metadata: kind {k}, expected 1 (text)")))
+            }
+            (k, _) if known_array => {
+                return Err(bad(format!("entry {name}: kind {k}, expected 0 (.npy)")))
+            }
+            // Room for additions: an entry this version does not know is skipped unread.
+            _ => {}
         }
+    }
+    if at != body.len() {
+        return Err(bad(format!(
+            "{} unexpected bytes after the last of {n_entries} entries",
+            body.len() - at
+        )));
     }
     let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, a)| a);
     let need = |name: &str| get(name).ok_or_else(|| bad(format!("missing entry {name}")));
@@ -514,30 +550,15 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
     Ok(ts)
 }
 
-/// Validates and writes a training set (atomically: a temporary file, synced, then renamed).
+/// Validates and writes a training set atomically ([`crate::atomic`]).
 pub fn write(ts: &TrainSetData, path: &Path) -> Result<()> {
     ts.validate()?;
-    let bytes = encode(ts);
-    let io = |source| IsaError::Io {
-        path: path.display().to_string(),
-        source,
-    };
-    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-    let res = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(&bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = res {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io(e));
-    }
-    Ok(())
+    crate::atomic::write_bytes(path, &encode(ts))
 }
 
 /// Reads and validates a training set.
 pub fn read(path: &Path) -> Result<TrainSetData> {
+    crate::atomic::clean_stale(path);
     let bytes = std::fs::read(path).map_err(|source| IsaError::Io {
         path: path.display().to_string(),
         source,
@@ -625,6 +646,77 @@ mod tests {
             .contains("data bytes"));
         let fortran = String::from_utf8_lossy(&f).replace("False", "True ");
         assert!(npy_decode(fortran.as_bytes()).is_err());
+    }
+
+    /// The entries of `encode(ts)` with `extra` appended, re-framed (valid checksum).
+    fn with_entries(ts: &TrainSetData, extra: &[(&str, u8, &[u8])]) -> Vec<u8> {
+        let b = encode(ts);
+        let n = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+        let mut at = 16;
+        let mut entries: Vec<(String, u8, Vec<u8>)> = Vec::new();
+        for _ in 0..n {
+            let nl = u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize;
+            let name = String::from_utf8(b[at + 4..at + 4 + nl].to_vec()).unwrap();
+            let kind = b[at + 4 + nl];
+            let len = u64::from_le_bytes(b[at + 5 + nl..at + 13 + nl].try_into().unwrap()) as usize;
+            entries.push((name, kind, b[at + 13 + nl..at + 13 + nl + len].to_vec()));
+            at += 13 + nl + len;
+        }
+        let mut all: Vec<(&str, u8, &[u8])> =
+            entries.iter().map(|(n, k, d)| (n.as_str(), *k, d.as_slice())).collect();
+        all.extend_from_slice(extra);
+        container(&all)
+    }
+
+    /// Issue 20: an unknown entry of another dtype was refused although the docs say unknown
+    /// entries are ignored; bytes after the last entry were accepted.
+    #[test]
+    fn unknown_entries_are_skipped_trailing_bytes_refused() {
+        let ts = sample();
+        let f64_npy = {
+            let mut b = npy_encode(&[1.0f32, 2.0], &[2]);
+            let h = String::from_utf8_lossy(&b).replace("<f4", "<f8");
+            b = h.into_bytes();
+            b.extend_from_slice(&[0; 8]);
+            b
+        };
+        let odd = with_entries(&ts, &[("future_f64", 0, &f64_npy), ("future_kind", 7, b"??"), ("notes", 1, b"hi")]);
+        same(&decode(&odd, "x").unwrap(), &ts);
+        // A known name of the wrong kind is still an error naming it.
+        let e = decode(&with_entries(&ts, &[("metadata", 0, b"x")]), "x").unwrap_err().to_string();
+        assert!(e.contains("metadata"), "{e}");
+        // Bytes after the last entry (checksum fixed up): refused.
+        let mut b = encode(&ts);
+        b.truncate(b.len() - 8);
+        b.extend_from_slice(b"trailing");
+        let sum = fnv1a64(&b);
+        b.extend_from_slice(&sum.to_le_bytes());
+        let e = decode(&b, "t.isat").unwrap_err().to_string();
+        assert!(e.contains("t.isat") && e.contains("8 unexpected bytes"), "{e}");
+    }
+
+    /// Issue 20: rotations of norm 5 or 1e30 were accepted (the docs say unit quaternions).
+    #[test]
+    fn rotations_must_be_unit_and_offsets_bounded() {
+        for (q, ok) in [
+            ([5.0, 0.0, 0.0, 0.0], false),
+            ([1e30, 0.0, 0.0, 0.0], false),
+            ([0.0; 4], false),
+            ([0.0, 0.9995, 0.0, 0.0], true),
+            ([0.5, 0.5, 0.5, -0.5], true),
+        ] {
+            let mut ts = sample();
+            ts.rotations[4..8].copy_from_slice(&q);
+            let r = decode(&encode(&ts), "r.isat");
+            assert_eq!(r.is_ok(), ok, "{q:?}: {r:?}");
+            if let Err(e) = r {
+                assert!(e.to_string().contains("rotations[1]"), "{e}");
+            }
+        }
+        let mut ts = sample();
+        ts.offsets[4] = 2e3;
+        let e = decode(&encode(&ts), "o.isat").unwrap_err().to_string();
+        assert!(e.contains("offsets[1, 1]"), "{e}");
     }
 
     #[test]

@@ -24,9 +24,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::criterion::{Criterion, Targets};
+use crate::criterion::{Criterion, Targets, MAX_TARGET_OFFSET};
 use crate::depth::{DepthStore, Part};
-use crate::features::{CandidateSoa, Feature, PartGeom};
+use crate::features::{CandidateSoa, Feature, PartGeom, MAX_FEATURE_OFFSET};
 use crate::params::ForestParams;
 use crate::rng::mix;
 use crate::rotation::{angle_sq_approx, unit_w_positive};
@@ -78,6 +78,74 @@ pub struct Tree {
 }
 
 impl Tree {
+    /// Checks what a loaded tree must satisfy for traversal and voting to be defined and finite
+    /// (a model file's trees, see `model_io`): structure (children after their parent and in
+    /// range, every leaf id used once and in range, vote ranges monotone and covering the
+    /// votes), split features within ±[`MAX_FEATURE_OFFSET`] and finite thresholds, vote
+    /// weights in [0, 1], offsets within ±[`MAX_TARGET_OFFSET`] and unit rotations (within
+    /// [`UNIT_NORM_TOLERANCE`](crate::rotation::UNIT_NORM_TOLERANCE)). The error says what and
+    /// where.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let (n_nodes, n_leaves) = (self.nodes.len(), self.n_leaves());
+        if n_nodes == 0 {
+            return Err("has no nodes".into());
+        }
+        if self.leaf_offsets.is_empty() {
+            return Err("has no leaf vote ranges".into());
+        }
+        let mut leaf_seen = vec![false; n_leaves];
+        for (i, n) in self.nodes.iter().enumerate() {
+            let c = n.child as usize;
+            if n.is_leaf {
+                if c >= n_leaves || leaf_seen[c] {
+                    return Err(format!(
+                        "node {i} names leaf {c} (have {n_leaves}, or used twice)"
+                    ));
+                }
+                leaf_seen[c] = true;
+                continue;
+            }
+            if c <= i || c >= n_nodes - 1 {
+                return Err(format!(
+                    "node {i} has children {c}, {} out of order/range",
+                    c as u64 + 1
+                ));
+            }
+            let f = &n.feature;
+            if !n.threshold.is_finite() {
+                return Err(format!("node {i}: threshold {} is not finite", n.threshold));
+            }
+            if f.u.iter().chain(&f.v).any(|x| !(x.abs() <= MAX_FEATURE_OFFSET)) {
+                return Err(format!(
+                    "node {i}: feature offsets {:?}, {:?} beyond ±{MAX_FEATURE_OFFSET} pixel·metres",
+                    f.u, f.v
+                ));
+            }
+        }
+        let lo = &self.leaf_offsets;
+        if lo[0] != 0 || lo.windows(2).any(|w| w[0] > w[1]) || lo[n_leaves] as usize != self.votes.len() {
+            return Err("leaf vote ranges are inconsistent".into());
+        }
+        for (k, v) in self.votes.iter().enumerate() {
+            if !(0.0..=1.0).contains(&v.weight) {
+                return Err(format!("vote {k}: weight {} is not in [0, 1]", v.weight));
+            }
+            if v.offset.iter().any(|x| !(x.abs() <= MAX_TARGET_OFFSET)) {
+                return Err(format!(
+                    "vote {k}: offset {:?} beyond ±{MAX_TARGET_OFFSET} m",
+                    v.offset
+                ));
+            }
+            if !crate::rotation::is_unit(&v.rotation) {
+                return Err(format!(
+                    "vote {k}: rotation {:?} is not a unit quaternion",
+                    v.rotation
+                ));
+            }
+        }
+        Ok(())
+    }
+
     pub fn n_leaves(&self) -> usize {
         self.leaf_offsets.len().saturating_sub(1)
     }

@@ -4,6 +4,7 @@
 //! | core variant | Python class | also |
 //! |---|---|---|
 //! | `InvalidInput` | `InvalidInputError` | `ValueError` |
+//! | (argument of the wrong type, binding side) | `InvalidTypeError` (an `InvalidInputError`) | `TypeError` |
 //! | `InvalidParameter` | `InvalidParameterError` | `ValueError` |
 //! | `ModelFormat` | `ModelFormatError` | `ValueError` |
 //! | `Io` | `IsaIOError` | `OSError`; by error kind `IsaFileNotFoundError` (`FileNotFoundError`), `IsaPermissionError` (`PermissionError`), `IsaIsADirectoryError` (`IsADirectoryError`), with `errno` and `filename` set |
@@ -32,6 +33,10 @@ class InvalidParameterError(IsaError, ValueError):
     """A hyper-parameter failed validation (the message names it)."""
     __module__ = "isa._core"
 
+class InvalidTypeError(InvalidInputError, TypeError):
+    """An argument has the wrong type (the message names it)."""
+    __module__ = "isa._core"
+
 class ModelFormatError(IsaError, ValueError):
     """A model file is truncated, corrupted, foreign or from a newer format version."""
     __module__ = "isa._core"
@@ -54,9 +59,10 @@ class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
 "#;
 
 /// Class names, in the order of [`Kind`].
-const NAMES: [&str; 8] = [
+const NAMES: [&str; 9] = [
     "IsaError",
     "InvalidInputError",
+    "InvalidTypeError",
     "InvalidParameterError",
     "ModelFormatError",
     "IsaIOError",
@@ -68,12 +74,13 @@ const NAMES: [&str; 8] = [
 #[derive(Clone, Copy)]
 enum Kind {
     Input = 1,
-    Parameter = 2,
-    Format = 3,
-    Io = 4,
-    NotFound = 5,
-    Permission = 6,
-    IsDirectory = 7,
+    Type = 2,
+    Parameter = 3,
+    Format = 4,
+    Io = 5,
+    NotFound = 6,
+    Permission = 7,
+    IsDirectory = 8,
 }
 
 static TYPES: PyOnceLock<Vec<Py<PyType>>> = PyOnceLock::new();
@@ -129,6 +136,10 @@ pub fn to_py(e: CoreError) -> PyErr {
 
 pub fn input_err(msg: impl Into<String>) -> PyErr {
     new_err(Kind::Input, msg.into())
+}
+
+pub fn type_err(msg: impl Into<String>) -> PyErr {
+    new_err(Kind::Type, msg.into())
 }
 
 pub fn param_err(msg: impl Into<String>) -> PyErr {

@@ -7,7 +7,16 @@ use pyo3::prelude::*;
 use isa_core::Feature;
 
 use crate::arrays::{depth_store, f32_array, matrix, parts as parts_arg};
-use crate::errors::to_py;
+use crate::errors::{param_err, to_py};
+use crate::scalars;
+
+fn stride_arg(o: &Bound<'_, PyAny>) -> PyResult<usize> {
+    scalars::count(o, "stride", 1, param_err)
+}
+
+fn seed_arg(o: &Bound<'_, PyAny>) -> PyResult<u64> {
+    scalars::seed(o, "seed")
+}
 
 /// Parts on a `stride` grid of every image: (P, 3) int32 `[image, u, v]` with depth > 0.
 /// `max_per_image` (training) keeps at most that many per image, drawn from `seed`.
@@ -16,10 +25,11 @@ use crate::errors::to_py;
 pub fn sample_parts<'py>(
     py: Python<'py>,
     images: &Bound<'py, PyAny>,
-    stride: usize,
-    max_per_image: Option<usize>,
-    seed: u64,
+    #[pyo3(from_py_with = stride_arg)] stride: usize,
+    max_per_image: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = seed_arg)] seed: u64,
 ) -> PyResult<Bound<'py, PyArray2<i32>>> {
+    let max_per_image = scalars::opt_count(max_per_image, "max_per_image", 0, param_err)?;
     let store = depth_store(images)?;
     let parts = py
         .detach(|| isa_core::sample_parts(&store, stride, max_per_image, seed))

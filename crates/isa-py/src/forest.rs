@@ -1,7 +1,15 @@
 //! `isa._core.Forest`: fit / save / load / pickle / leaves and votes of parts.
+//!
+//! Threads: the object is immutable to pyo3 (`frozen`) and keeps its state behind a lock that
+//! is held only to read or swap it, never while the core works. A call takes the current
+//! trained forest (an `Arc`) and runs on it with the GIL released; `fit`, `__setstate__` and
+//! the `n_threads` setter swap in new state that later calls see, while calls in progress
+//! finish on what they took. So reads are concurrent and a change while in use neither fails
+//! nor waits for them (pyo3's mutable borrow raised a generic `RuntimeError: Already
+//! borrowed`).
 
-use std::path::PathBuf;
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, RwLock};
 
 use numpy::prelude::*;
 use numpy::{PyArray1, PyArray2, PyReadonlyArrayDyn};
@@ -13,8 +21,9 @@ use isa_core::metadata::split_metadata;
 use isa_core::{Forest, ForestParams, TrainingSet, Valid};
 
 use crate::arrays::{depth_store, f32_array, given, matrix, parts as parts_arg, rows, vector};
-use crate::errors::{input_err, param_err, to_py};
+use crate::errors::{input_err, to_py};
 use crate::params::{forest_params, json_to_py, kwargs_json};
+use crate::scalars;
 
 fn slice<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> &'a [f32] {
     a.as_slice().expect("checked contiguous")
@@ -22,30 +31,61 @@ fn slice<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> &'a [f32] {
 
 /// A forest of randomised trees voting for the SSC offset and rotation of depth-image parts
 /// (the ISA forest, paper Section 3.3).
-#[pyclass(name = "Forest", module = "isa._core")]
+#[pyclass(name = "Forest", module = "isa._core", frozen)]
 pub struct PyForest {
+    state: RwLock<State>,
+    /// 0 = None (all cores).
+    n_threads: AtomicUsize,
+}
+
+#[derive(Clone)]
+struct State {
     params: Valid<ForestParams>,
-    forest: Option<Forest>,
-    n_threads: Option<usize>,
+    forest: Option<Arc<Forest>>,
+}
+
+impl State {
+    fn of(f: Forest) -> Self {
+        State {
+            params: f.params.clone().check().expect("a forest's parameters are valid"),
+            forest: Some(Arc::new(f)),
+        }
+    }
 }
 
 impl PyForest {
-    fn fitted(&self) -> PyResult<&Forest> {
-        self.forest
-            .as_ref()
+    fn new_with(state: State, n_threads: Option<usize>) -> Self {
+        PyForest {
+            state: RwLock::new(state),
+            n_threads: AtomicUsize::new(n_threads.unwrap_or(0)),
+        }
+    }
+    fn state(&self) -> State {
+        self.state.read().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+    fn set_state(&self, s: State) {
+        *self.state.write().unwrap_or_else(|p| p.into_inner()) = s;
+    }
+    fn fitted(&self) -> PyResult<Arc<Forest>> {
+        self.state()
+            .forest
             .ok_or_else(|| input_err("this Forest is not fitted: call fit() or Forest.load()"))
     }
     pub fn from_core(f: Forest) -> Self {
-        PyForest {
-            params: f.params.clone().check().expect("a forest's parameters are valid"),
-            forest: Some(f),
-            n_threads: None,
-        }
+        PyForest::new_with(State::of(f), None)
     }
     /// The trained core forest (for other bindings, e.g. prediction).
-    pub fn core(&self) -> PyResult<&Forest> {
+    pub fn core(&self) -> PyResult<Arc<Forest>> {
         self.fitted()
     }
+    /// The thread setting (None = all cores).
+    pub fn threads(&self) -> Option<usize> {
+        Some(self.n_threads.load(Ordering::Relaxed)).filter(|&n| n > 0)
+    }
+}
+
+fn metadata_arg(o: &Bound<'_, PyAny>) -> PyResult<String> {
+    scalars::text(o, "metadata")
 }
 
 const STATE_UNFITTED: &[u8] = b"ISA-UNFITTED\0";
@@ -54,17 +94,13 @@ const STATE_UNFITTED: &[u8] = b"ISA-UNFITTED\0";
 impl PyForest {
     #[new]
     #[pyo3(signature = (*, n_threads=None, **params))]
-    fn new(n_threads: Option<usize>, params: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
-        if n_threads == Some(0) {
-            return Err(param_err(
-                "n_threads must be at least 1 (or None for all cores)",
-            ));
-        }
-        Ok(PyForest {
+    fn new(n_threads: Option<&Bound<'_, PyAny>>, params: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        let n_threads = scalars::n_threads(n_threads)?;
+        let state = State {
             params: forest_params(params)?,
             forest: None,
-            n_threads,
-        })
+        };
+        Ok(PyForest::new_with(state, n_threads))
     }
 
     /// Trains the forest (the GIL is released while training). ``metadata``: a JSON object
@@ -72,10 +108,10 @@ impl PyForest {
     /// inference defaults); ``predict_defaults``: inference defaults (flat keys), overlaid on
     /// those. ``on_tree(trees_done)``, if given, is called after each tree (for a progress bar);
     /// its first exception is raised once training ends.
-    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}", on_tree=None, predict_defaults=None))]
+    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata=String::from("{}"), on_tree=None, predict_defaults=None))]
     #[allow(clippy::too_many_arguments)]
     fn fit(
-        &mut self,
+        &self,
         py: Python<'_>,
         images: &Bound<'_, PyAny>,
         parts: &Bound<'_, PyAny>,
@@ -83,11 +119,11 @@ impl PyForest {
         rotations: &Bound<'_, PyAny>,
         link_angles: Option<&Bound<'_, PyAny>>,
         node_offsets: Option<&Bound<'_, PyAny>>,
-        metadata: &str,
+        #[pyo3(from_py_with = metadata_arg)] metadata: String,
         on_tree: Option<Py<PyAny>>,
         predict_defaults: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<()> {
-        let (meta, defaults) = split_metadata(metadata, "metadata", false).map_err(to_py)?;
+        let (meta, defaults) = split_metadata(&metadata, "metadata", false).map_err(to_py)?;
         let defaults = defaults
             .with_overrides(&kwargs_json(predict_defaults)?, "predict_defaults")
             .map_err(to_py)?;
@@ -108,8 +144,8 @@ impl PyForest {
             link_angles: la.as_ref().map(|a| (slice(a), a.shape()[1])),
             node_offsets: no.as_ref().map(|a| (slice(a), a.shape()[1])),
         };
-        let params = self.params.clone();
-        let threads = self.n_threads;
+        let params = self.state().params;
+        let threads = self.threads();
         let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
         let forest = py.detach(|| {
             let data = TrainingSet {
@@ -133,12 +169,16 @@ impl PyForest {
         if let Some(e) = hook_err.into_inner().unwrap_or_else(|p| p.into_inner()) {
             return Err(e);
         }
-        self.forest = Some(forest);
+        self.set_state(State {
+            params,
+            forest: Some(Arc::new(forest)),
+        });
         Ok(())
     }
 
     /// Saves the model atomically (temporary file + rename).
-    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+    fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
+        let path = scalars::path(path, "path")?;
         let f = self.fitted()?;
         py.detach(|| f.save(&path)).map_err(to_py)
     }
@@ -146,12 +186,11 @@ impl PyForest {
     /// Loads a model file; raises ModelFormatError for a bad file, IsaIOError if unreadable.
     #[staticmethod]
     #[pyo3(signature = (path, *, n_threads=None))]
-    fn load(py: Python<'_>, path: PathBuf, n_threads: Option<usize>) -> PyResult<Self> {
+    fn load(py: Python<'_>, path: &Bound<'_, PyAny>, n_threads: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let path = scalars::path(path, "path")?;
+        let n_threads = scalars::n_threads(n_threads)?;
         let f = py.detach(|| Forest::load(&path)).map_err(to_py)?;
-        Ok(PyForest {
-            n_threads,
-            ..PyForest::from_core(f)
-        })
+        Ok(PyForest::new_with(State::of(f), n_threads))
     }
 
     /// The model-file bytes.
@@ -160,35 +199,38 @@ impl PyForest {
     }
 
     #[staticmethod]
-    fn from_bytes(data: &[u8]) -> PyResult<Self> {
+    fn from_bytes(data: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let data = scalars::bytes(data, "data")?;
         Ok(PyForest::from_core(
-            Forest::from_bytes(data).map_err(to_py)?,
+            Forest::from_bytes(&data).map_err(to_py)?,
         ))
     }
 
     fn __getstate__<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
-        match &self.forest {
+        let s = self.state();
+        match &s.forest {
             Some(f) => PyBytes::new(py, &f.to_bytes()),
             None => {
                 let mut b = STATE_UNFITTED.to_vec();
-                b.extend_from_slice(self.params.to_json().as_bytes());
+                b.extend_from_slice(s.params.to_json().as_bytes());
                 PyBytes::new(py, &b)
             }
         }
     }
 
-    fn __setstate__(&mut self, state: &[u8]) -> PyResult<()> {
-        if let Some(rest) = state.strip_prefix(STATE_UNFITTED) {
+    fn __setstate__(&self, state: &Bound<'_, PyAny>) -> PyResult<()> {
+        let state = scalars::bytes(state, "state")?;
+        let new = if let Some(rest) = state.strip_prefix(STATE_UNFITTED) {
             let s = std::str::from_utf8(rest)
                 .map_err(|_| input_err("pickled Forest state is not UTF-8"))?;
-            self.params = ForestParams::from_json(s).map_err(to_py)?;
-            self.forest = None;
+            State {
+                params: ForestParams::from_json(s).map_err(to_py)?,
+                forest: None,
+            }
         } else {
-            *self = PyForest {
-                n_threads: self.n_threads,
-                ..PyForest::from_core(Forest::from_bytes(state).map_err(to_py)?)
-            };
-        }
+            State::of(Forest::from_bytes(&state).map_err(to_py)?)
+        };
+        self.set_state(new);
         Ok(())
     }
 
@@ -202,7 +244,7 @@ impl PyForest {
         let f = self.fitted()?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
-        let threads = self.n_threads;
+        let threads = self.threads();
         let leaves = py
             .detach(|| isa_core::forest::with_threads(threads, || f.apply(&store, &parts)))
             .map_err(to_py)?
@@ -223,7 +265,7 @@ impl PyForest {
         let f = self.fitted()?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
-        let threads = self.n_threads;
+        let threads = self.threads();
         let votes = py
             .detach(|| isa_core::forest::with_threads(threads, || f.part_votes(&store, &parts)))
             .map_err(to_py)?
@@ -242,13 +284,15 @@ impl PyForest {
     fn leaf_votes<'py>(
         &self,
         py: Python<'py>,
-        tree: usize,
-        leaf: usize,
+        tree: &Bound<'py, PyAny>,
+        leaf: &Bound<'py, PyAny>,
     ) -> PyResult<(
         Bound<'py, PyArray1<f32>>,
         Bound<'py, PyArray2<f32>>,
         Bound<'py, PyArray2<f32>>,
     )> {
+        let tree = scalars::count(tree, "tree", 0, input_err)?;
+        let leaf = scalars::count(leaf, "leaf", 0, input_err)?;
         let f = self.fitted()?;
         if tree >= f.n_trees() || leaf >= f.trees[tree].n_leaves() {
             return Err(input_err(format!("no leaf {leaf} in tree {tree}")));
@@ -264,7 +308,7 @@ impl PyForest {
     /// Training configuration as JSON.
     #[getter]
     fn params_json(&self) -> String {
-        self.params.to_json()
+        self.state().params.to_json()
     }
     /// Metadata as a JSON object (category, centre, box, training summary, extra keys).
     #[getter]
@@ -289,7 +333,7 @@ impl PyForest {
         slf: &Bound<'py, Self>,
         depth: &Bound<'py, PyAny>,
         K: &Bound<'py, PyAny>,
-        n_threads: Option<usize>,
+        n_threads: Option<&Bound<'py, PyAny>>,
         params: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Bound<'py, PyList>> {
         crate::predict::predict_with(slf, depth, K, n_threads, params)
@@ -304,33 +348,28 @@ impl PyForest {
         slf: &Bound<'py, Self>,
         depth: &Bound<'py, PyAny>,
         K: &Bound<'py, PyAny>,
-        n_threads: Option<usize>,
+        n_threads: Option<&Bound<'py, PyAny>>,
         params: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         crate::predict::image_votes_with(slf, depth, K, n_threads, params)
     }
     #[getter]
     fn is_fitted(&self) -> bool {
-        self.forest.is_some()
+        self.state().forest.is_some()
     }
     #[getter]
     fn n_trees(&self) -> usize {
-        self.forest
-            .as_ref()
-            .map_or(self.params.n_trees, |f| f.n_trees())
+        let s = self.state();
+        s.forest.as_ref().map_or(s.params.n_trees, |f| f.n_trees())
     }
     #[getter]
     fn n_threads(&self) -> Option<usize> {
-        self.n_threads
+        self.threads()
     }
     #[setter]
-    fn set_n_threads(&mut self, n: Option<usize>) -> PyResult<()> {
-        if n == Some(0) {
-            return Err(param_err(
-                "n_threads must be at least 1 (or None for all cores)",
-            ));
-        }
-        self.n_threads = n;
+    fn set_n_threads(&self, n: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let n = scalars::n_threads(n)?;
+        self.n_threads.store(n.unwrap_or(0), Ordering::Relaxed);
         Ok(())
     }
     /// Version of isa that trained the model.
@@ -355,7 +394,8 @@ impl PyForest {
     }
 
     fn __repr__(&self) -> String {
-        match &self.forest {
+        let s = self.state();
+        match &s.forest {
             Some(f) => {
                 let (n, l) = f.size();
                 format!(
@@ -366,8 +406,8 @@ impl PyForest {
             }
             None => format!(
                 "Forest(unfitted, n_trees={}, quality={:?})",
-                self.params.n_trees,
-                self.params.quality.as_str()
+                s.params.n_trees,
+                s.params.quality.as_str()
             ),
         }
     }

@@ -1,6 +1,7 @@
 //! PyO3 binding of `isa-core`, importable as `isa._core`. This layer only converts: NumPy
 //! arrays in and out (`arrays`), keyword arguments to the core's parameter overlay (`params`),
-//! core errors to their Python exception classes (`errors`). One file per domain: the forest
+//! core errors to their Python exception classes (`errors`), scalar arguments checked into
+//! `isa` errors (`scalars`). One file per domain: the forest
 //! (`forest`, with `predict` / `image_votes` methods), inference (`predict`, `hypothesis`),
 //! features (`features`), training-set files (`trainset`), and test hooks in the private
 //! submodule `isa._core._testing` (`testing`).
@@ -14,6 +15,7 @@ pub mod forest;
 pub mod hypothesis;
 pub mod params;
 pub mod predict;
+pub mod scalars;
 pub mod testing;
 pub mod trainset;
 

@@ -16,20 +16,22 @@ use isa_core::vote::{self as core_vote, DepthImage, Intrinsics, PoseVote};
 use isa_core::{PredictParams, Valid, VoteParams};
 
 use crate::arrays::{array, as_slice, check_finite, describe, given, rows, vector};
-use crate::errors::{input_err, param_err, to_py};
+use crate::errors::{input_err, to_py};
 use crate::forest::PyForest;
 use crate::hypothesis;
+use crate::scalars;
 use crate::params::{kwargs_json, predict_params, KWARGS};
 
 /// Intrinsics from an object with `fx, fy, cx, cy` attributes (e.g. `isa.camera.Intrinsics`),
 /// a 3x3 camera matrix, or a sequence `(fx, fy, cx, cy)`.
 fn intrinsics(k: &Bound<'_, PyAny>) -> PyResult<Intrinsics> {
     let i = if k.hasattr("fx")? {
+        let num = |a: &str| scalars::number(&k.getattr(a)?, &format!("K.{a}"));
         Intrinsics {
-            fx: k.getattr("fx")?.extract()?,
-            fy: k.getattr("fy")?.extract()?,
-            cx: k.getattr("cx")?.extract()?,
-            cy: k.getattr("cy")?.extract()?,
+            fx: num("fx")?,
+            fy: num("fy")?,
+            cx: num("cx")?,
+            cy: num("cy")?,
         }
     } else if let Ok(m) = k.extract::<[[f64; 3]; 3]>() {
         return Intrinsics::from_matrix(m).map_err(to_py);
@@ -94,14 +96,9 @@ fn depth_mm(depth: &Bound<'_, PyAny>) -> PyResult<(Vec<u16>, usize, usize)> {
     Ok((px, w, h))
 }
 
-fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<usize>) -> PyResult<Option<usize>> {
-    match n_threads {
-        Some(0) => Err(param_err(
-            "n_threads must be at least 1 (or None for the forest's setting)",
-        )),
-        Some(n) => Ok(Some(n)),
-        None => forest.getattr("n_threads")?.extract(),
-    }
+/// The call's `n_threads`, else the forest's setting.
+fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
+    Ok(scalars::n_threads(n_threads)?.or(forest.get().threads()))
 }
 
 /// Converts and checks one whole-image call (threads, the model's inference defaults overlaid by
@@ -110,7 +107,7 @@ fn on_image<'py, T: Send>(
     forest: &Bound<'py, PyForest>,
     depth: &Bound<'py, PyAny>,
     k: &Bound<'py, PyAny>,
-    n_threads: Option<usize>,
+    n_threads: Option<&Bound<'py, PyAny>>,
     params: Option<&Bound<'py, PyDict>>,
     run: impl FnOnce(
             &isa_core::Forest,
@@ -121,8 +118,7 @@ fn on_image<'py, T: Send>(
         + Send,
 ) -> PyResult<T> {
     let threads = threads_of(forest, n_threads)?;
-    let fref = forest.borrow();
-    let f = fref.core()?;
+    let f = forest.get().core()?;
     let params = predict_params(&f.predict_defaults, params)?;
     let k = intrinsics(k)?;
     let (px, width, height) = depth_mm(depth)?;
@@ -130,7 +126,7 @@ fn on_image<'py, T: Send>(
         .py()
         .detach(|| {
             let img = DepthImage::new(&px, width, height)?;
-            isa_core::forest::with_threads(threads, || run(f, &img, &k, &params))?
+            isa_core::forest::with_threads(threads, || run(&f, &img, &k, &params))?
         })
         .map_err(to_py)
 }
@@ -141,7 +137,7 @@ pub fn predict_with<'py>(
     forest: &Bound<'py, PyForest>,
     depth: &Bound<'py, PyAny>,
     k: &Bound<'py, PyAny>,
-    n_threads: Option<usize>,
+    n_threads: Option<&Bound<'py, PyAny>>,
     params: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyList>> {
     let hyps = on_image(forest, depth, k, n_threads, params, core_vote::predict)?;
@@ -153,7 +149,7 @@ pub fn image_votes_with<'py>(
     forest: &Bound<'py, PyForest>,
     depth: &Bound<'py, PyAny>,
     k: &Bound<'py, PyAny>,
-    n_threads: Option<usize>,
+    n_threads: Option<&Bound<'py, PyAny>>,
     params: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = forest.py();
@@ -184,7 +180,7 @@ pub fn find_modes<'py>(
     positions: &Bound<'py, PyAny>,
     rotations: &Bound<'py, PyAny>,
     weights: Option<&Bound<'py, PyAny>>,
-    n_threads: Option<usize>,
+    n_threads: Option<&Bound<'py, PyAny>>,
     params: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyList>> {
     let mut p = VoteParams::default();
@@ -207,11 +203,7 @@ pub fn find_modes<'py>(
             weight: ws.map_or(1.0, |w| w[i]),
         })
         .collect();
-    if n_threads == Some(0) {
-        return Err(param_err(
-            "n_threads must be at least 1 (or None for all cores)",
-        ));
-    }
+    let n_threads = scalars::n_threads(n_threads)?;
     let hyps = py
         .detach(|| isa_core::forest::with_threads(n_threads, || core_vote::find_modes(&votes, &p))?)
         .map_err(to_py)?;

@@ -11,16 +11,14 @@ Layout written here (readable by other BOP tools)::
     <root>/<split>/<scene:06d>/depth/000000.png    uint16, depth_mm = value * depth_scale
     <root>/<split>/<scene:06d>/mask/000000_000000.png   uint8 0/255, <image>_<gt index>
 
-Every file is written to a temporary name and renamed into place, so a crash never leaves a
-half-written file. ``scene_gt.json`` is the commit record of a frame: a frame counts as written
+Every file is written atomically (:mod:`isa.atomic`), so a crash never leaves a half-written
+file; a scene's stale temporary files go when its writer opens. ``scene_gt.json`` is the commit record of a frame: a frame counts as written
 only when its entry is there and its PNGs exist.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -30,6 +28,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
+from isa import atomic
 from isa.camera import Intrinsics, metres_to_mm
 from isa.exceptions import DataError, DataNotFoundError, InvalidValueError
 
@@ -43,17 +42,9 @@ MAX_DEPTH_UNITS = 65535
 
 
 def _atomic_write(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` then rename onto ``path`` (same folder, so the rename is atomic)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    """Call ``write(tmp_path)`` then rename onto ``path`` (:mod:`isa.atomic`; a scene's folders are
+    cleaned of stale temporary files once, by :class:`SceneWriter`)."""
+    atomic.write_with(path, write, parents=True, clean=False)
 
 
 def write_json(path: str | Path, data) -> None:
@@ -203,6 +194,8 @@ class SceneWriter:
         self.flush_every = flush_every
         (self.dir / "depth").mkdir(parents=True, exist_ok=True)
         (self.dir / "mask").mkdir(parents=True, exist_ok=True)
+        for d in (self.dir, self.dir / "depth", self.dir / "mask"):
+            atomic.clean_stale_in(d)  # a killed run's half-written frames
         self.camera = read_json(self.dir / "scene_camera.json") if (self.dir / "scene_camera.json").is_file() else {}
         self.gt = read_json(self.dir / "scene_gt.json") if (self.dir / "scene_gt.json").is_file() else {}
         self.gt_info = read_json(self.dir / "scene_gt_info.json") if (self.dir / "scene_gt_info.json").is_file() else {}

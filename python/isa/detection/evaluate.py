@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from isa import atomic
 from isa.exceptions import DataError
 
 __all__ = ["VARIANTS", "variant_params", "run_variant", "main"]
@@ -132,7 +133,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"| {v} | {cells} | {results[v]['ms_per_frame']:.0f} ms |", flush=True)
     if a.json:
         doc = {"scenes": a.scenes or a.sun, "split": a.split, "models": a.model, "results": results}
-        a.json.write_text(json.dumps(doc, indent=1))
+        atomic.write_text(a.json, json.dumps(doc, indent=1))
 
 
 if __name__ == "__main__":

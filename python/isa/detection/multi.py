@@ -25,6 +25,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from isa import atomic
 from isa.camera import Intrinsics
 from isa.detection.gravity import GravityEstimate, estimate_gravity
 from isa.detection.refine import RefineParams, refine_pose, upright_points
@@ -411,7 +412,5 @@ def write_bop_csv(path: str | Path, rows: Sequence[tuple[int, int, float, SceneD
         R = " ".join(f"{x:.6f}" for x in np.asarray(d.R).reshape(-1))
         t = " ".join(f"{1000 * x:.3f}" for x in np.asarray(d.t).reshape(-1))
         lines.append(f"{scene_id},{im_id},{obj_ids[d.category]},{d.score:.6f},{R},{t},{secs:.4f}")
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)
+    atomic.write_text(path, "\n".join(lines) + "\n")
     return path

@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from isa import atomic
 from isa.exceptions import DataError
 
 #: Surface samples per shape: enough for a dense z-buffer of a 1 m object at 1.5 m in 4 px cells.
@@ -69,11 +70,9 @@ class ShapeLibrary:
 
 
 def save_npz(path: str | Path, **arrays) -> None:
-    """``np.savez_compressed`` written atomically (temporary file + rename)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(path)
+    """``np.savez_compressed`` written atomically (:mod:`isa.atomic`)."""
+    # The temporary name keeps ``.npz``, so NumPy does not append one.
+    atomic.write_with(path, lambda tmp: np.savez_compressed(tmp, **arrays))
 
 
 def load_npz(path: str | Path, what: str, keys: Sequence[str]) -> dict:

@@ -22,14 +22,14 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from isa import _core
-from isa.exceptions import InvalidParameterError
+from isa.exceptions import InvalidParameterError, InvalidTypeError
 
 QUALITIES = ("Q1", "Q1+Q2", "Q1+Q3", "Q1+Q2+Q3")
 
@@ -111,6 +111,11 @@ class Forest:
     def __init__(self, params: ForestParams | None = None, *, n_threads: int | None = None, **kwargs: Any) -> None:
         if params is not None and kwargs:
             raise InvalidParameterError("pass either params or keyword hyper-parameters, not both")
+        unknown = sorted(set(kwargs) - {f.name for f in fields(ForestParams)})
+        if unknown:
+            known = ", ".join(f.name for f in fields(ForestParams))
+            # TypeError as for any unexpected keyword argument, and an isa error.
+            raise InvalidTypeError(f"Forest: unknown parameter(s) {', '.join(unknown)} (known: {known})")
         self.params = params if params is not None else ForestParams(**kwargs)
         self._core = _core.Forest(n_threads=n_threads, **self.params._core_kwargs())
 

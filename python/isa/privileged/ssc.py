@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from isa import atomic
 from isa.exceptions import InvalidValueError
 from isa.privileged.matching import match_skeleton
 from isa.privileged.skeleton import extract_skeleton, solid_centre_of_mass
@@ -162,7 +163,7 @@ class CategorySSC:
     def save(self, path: str | Path) -> None:
         d = {"template": self.template.to_dict(), "ssc": self.ssc.to_dict(), "extract_kw": self.extract_kw,
              "centre": self.centre}
-        Path(path).write_text(json.dumps(d))
+        atomic.write_text(path, json.dumps(d))
 
     @classmethod
     def load(cls, path: str | Path) -> "CategorySSC":

@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
+from isa import atomic
 from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS, check_category
 from isa.data import bop
@@ -132,6 +133,7 @@ def check_settings(path: Path, settings: dict) -> None:
 def _write_models(root: Path, objects: Sequence[ObjectSpec]) -> None:
     info_path = root / "models" / "models_info.json"
     isa_path = root / "models" / "models_isa.json"
+    atomic.clean_stale_in(root / "models")  # a killed run's half-written files
     infos = bop.read_models_info(root) if info_path.is_file() else {}
     extras = {int(k): v for k, v in bop.read_json(isa_path).items()} if isa_path.is_file() else {}
     for o in objects:

@@ -1,6 +1,6 @@
 """A small Markdown report builder: headings, text, tables and pictures, plus the JSON results.
 
-Reports are written atomically (temporary file, then rename) so a crashed run never leaves a
+Reports are written atomically (:mod:`isa.atomic`) so a crashed run never leaves a
 half-written report behind.
 """
 
@@ -11,14 +11,10 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
+from isa import atomic
+
 #: Version of the ``results.json`` layout (docs/results.md); bumped when its schema changes.
 RESULTS_SCHEMA = "isa-results/2"
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _fmt(x: Any) -> str:
@@ -60,7 +56,7 @@ class Report:
 
     def write(self, name: str = "report.md", results_name: str = "results.json") -> Path:
         path = self.out_dir / name
-        _atomic_write_text(path, "\n".join(self.blocks))
+        atomic.write_text(path, "\n".join(self.blocks))
         if self.results:
-            _atomic_write_text(self.out_dir / results_name, json.dumps(self.results, indent=2, sort_keys=True))
+            atomic.write_text(self.out_dir / results_name, json.dumps(self.results, indent=2, sort_keys=True))
         return path

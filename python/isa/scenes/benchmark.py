@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
+from isa import atomic
 from isa.camera import Intrinsics
 from isa.exceptions import DataError, DataNotFoundError
 from isa.scenes.scoring import (
@@ -157,9 +158,7 @@ def save_detections(path: str | os.PathLike, datasets: Mapping[str, Mapping[str,
         doc["datasets"][name] = {**{k: v for k, v in d.items() if k not in ("detections", "frames")},
                                  "frames": [{"name": n, "detections": [x.to_dict() for x in dets]}
                                             for n, dets in zip(d["frames"], d["detections"])]}
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=1))
-    os.replace(tmp, path)
+    atomic.write_text(path, json.dumps(doc, indent=1))
     return path
 
 

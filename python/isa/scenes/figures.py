@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from isa import atomic
 from isa.scenes.scoring import METRICS, VISIB_BINS, Scores
 
 __all__ = ["ap_by_visibility_figure"]
@@ -47,6 +48,5 @@ def ap_by_visibility_figure(scores: Scores, path: str | Path, title: str = "", d
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    atomic.write_with(path, lambda tmp: fig.savefig(tmp, dpi=dpi), parents=True)
     return path

@@ -2,6 +2,7 @@
 //! training-set file, a model file with the typed metadata and inference defaults the training
 //! set's metadata carries.
 
+use std::io::Write;
 use std::time::Instant;
 
 use isa_core::metadata::split_metadata;
@@ -76,7 +77,9 @@ pub fn run(a: TrainArgs) -> CliResult<()> {
     forest.save(&a.output)?;
     let (nodes, leaves) = forest.size();
     if !a.quiet {
-        eprintln!(
+        // Not eprintln!: it panics when standard error is closed.
+        let _ = writeln!(
+            std::io::stderr(),
             "{msg}: done in {secs:.1} s; {nodes} nodes, {leaves} leaves; wrote {}",
             a.output.display()
         );

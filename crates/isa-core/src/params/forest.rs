@@ -197,9 +197,13 @@ impl ForestParams {
                 self.n_thresholds
             ));
         }
-        if !(self.max_offset.is_finite() && self.max_offset > 0.0 && self.max_offset <= 1e5) {
+        if !(self.max_offset.is_finite()
+            && self.max_offset > 0.0
+            && self.max_offset <= crate::features::MAX_FEATURE_OFFSET)
+        {
             return bad(format!(
-                "max_offset must be in (0, 1e5] pixel·metres, got {}",
+                "max_offset must be in (0, {}] pixel·metres, got {}",
+                crate::features::MAX_FEATURE_OFFSET,
                 self.max_offset
             ));
         }

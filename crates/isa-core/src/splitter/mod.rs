@@ -246,7 +246,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let off: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
         let rot: Vec<f32> = (0..n)
-            .flat_map(|i| [1.0, 0.0, 0.0, (i % 7) as f32 * 0.1])
+            .flat_map(|i| crate::rotation::unit_w_positive(&[1.0, 0.0, 0.0, (i % 7) as f32 * 0.1]))
             .collect();
         let la: Vec<f32> = (0..2 * n).map(|_| rng.random_range(-3.0..3.0)).collect();
         let feats: Vec<f32> = (0..n * 5)
@@ -290,7 +290,9 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(13);
         let off: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
         let rot: Vec<f32> = (0..n)
-            .flat_map(|i| [1.0, 0.1 * (i % 3) as f32, 0.0, (i % 7) as f32 * 0.1])
+            .flat_map(|i| {
+                crate::rotation::unit_w_positive(&[1.0, 0.1 * (i % 3) as f32, 0.0, (i % 7) as f32 * 0.1])
+            })
             .collect();
         let cols: Vec<f32> = (0..n * nc)
             .map(|i| {

@@ -35,13 +35,13 @@ pub(super) type CellMap = HashMap<u64, u32, BuildHasherDefault<CellHasher>>;
 pub(super) const KEY_BITS: u32 = 21;
 pub(super) const KEY_OFF: i64 = 1 << (KEY_BITS - 1);
 
+/// Cell indices are clamped to ±2^40 (far beyond what [`pack`] keeps), so neighbours `c ± 1`
+/// never overflow, whatever the position.
+const INDEX_LIMIT: f64 = (1u64 << 40) as f64;
+
 #[inline(always)]
 pub(super) fn cell_index(p: [f64; 3], inv_cell: f64) -> [i64; 3] {
-    [
-        (p[0] * inv_cell).floor() as i64,
-        (p[1] * inv_cell).floor() as i64,
-        (p[2] * inv_cell).floor() as i64,
-    ]
+    p.map(|x| (x * inv_cell).floor().clamp(-INDEX_LIMIT, INDEX_LIMIT) as i64)
 }
 
 /// Packs a cell index into 63 bits; indices beyond ±2^20 cells are clamped (votes that far

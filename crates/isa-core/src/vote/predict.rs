@@ -79,6 +79,21 @@ impl Intrinsics {
         Ok(())
     }
 
+    /// [`validate`](Self::validate), and the principal point inside a `width x height` image
+    /// (pixel centres at integers, so within `[-0.5, size - 0.5]`): outside it, the image and
+    /// the intrinsics do not belong together.
+    pub fn validate_for(&self, width: usize, height: usize) -> Result<()> {
+        self.validate()?;
+        let (w, h) = (width as f64, height as f64);
+        if !(self.cx >= -0.5 && self.cy >= -0.5 && self.cx <= w - 0.5 && self.cy <= h - 0.5) {
+            return Err(IsaError::InvalidInput(format!(
+                "intrinsics: principal point ({}, {}) lies outside the {width}x{height} (width x height) image: wrong intrinsics for this image",
+                self.cx, self.cy
+            )));
+        }
+        Ok(())
+    }
+
     /// 3D point (camera frame, metres) of pixel `(u, v)` at depth `z` metres.
     #[inline]
     pub fn back_project(&self, u: f64, v: f64, z: f64) -> [f64; 3] {
@@ -322,7 +337,7 @@ pub fn image_votes(
     k: &Intrinsics,
     params: &Valid<PredictParams>,
 ) -> Result<ImageVotes> {
-    k.validate()?;
+    k.validate_for(depth.width, depth.height)?;
     let (store, parts) = parts_of(depth, params)?;
     Ok(collect_votes(forest, &store, &parts, k, params, true))
 }
@@ -337,7 +352,7 @@ pub fn predict(
     k: &Intrinsics,
     params: &Valid<PredictParams>,
 ) -> Result<Vec<Hypothesis>> {
-    k.validate()?;
+    k.validate_for(depth.width, depth.height)?;
     let (store, parts) = parts_of(depth, params)?;
     let votes = collect_votes(forest, &store, &parts, k, params, false);
     // Leaf votes are finite (model files are validated) and so are back-projected pixels.
@@ -355,9 +370,8 @@ mod tests {
 
     /// A forest of `n` one-leaf trees, each leaf voting `votes`.
     fn constant_forest(n: usize, votes: &[Vote]) -> Forest {
-        let leaf = Node::leaf(0);
         let tree = Tree {
-            nodes: vec![leaf],
+            nodes: vec![Node::leaf(0)],
             leaf_offsets: vec![0, votes.len() as u32],
             votes: votes.to_vec(),
         };
@@ -368,6 +382,52 @@ mod tests {
             predict_defaults: Default::default(),
             crate_version: crate::VERSION.into(),
             flat: Default::default(),
+        }
+    }
+
+    /// Issue 20: huge feature offsets panicked with integer overflow where overflow checks are
+    /// on (this test profile). The largest values a model file may hold, and ±3e38 in a forest
+    /// built in memory (a file refuses them), on the nearest depth (1 mm: the largest pixel
+    /// steps) and the farthest, predict finite poses without a panic.
+    #[test]
+    fn extreme_models_predict_without_overflow() {
+        use crate::criterion::MAX_TARGET_OFFSET;
+        use crate::features::MAX_FEATURE_OFFSET;
+        let make = |m: f32, o: f32| {
+            let vote = |s: f32| Vote {
+                weight: 1.0,
+                offset: [s * o, -s * o, o],
+                rotation: [0.0, 0.0, 0.6, 0.8],
+            };
+            let split = Node {
+                feature: Feature { u: [m, -m], v: [-m, m] },
+                threshold: -f32::MAX,
+                child: 1,
+                is_leaf: false,
+            };
+            let mut forest = constant_forest(2, &[vote(1.0)]);
+            forest.params.n_trees = 2;
+            forest.trees[0] = Tree {
+                nodes: vec![split, Node::leaf(0), Node::leaf(1)],
+                leaf_offsets: vec![0, 1, 2],
+                votes: vec![vote(1.0), vote(-1.0)],
+            };
+            forest
+        };
+        let at_bounds = Forest::from_bytes(&make(MAX_FEATURE_OFFSET, MAX_TARGET_OFFSET).to_bytes()).unwrap();
+        let huge = make(3e38, 3e38);
+        assert!(Forest::from_bytes(&huge.to_bytes()).is_err());
+        let (w, h) = (40usize, 30usize);
+        let depth: Vec<u16> = (0..w * h).map(|i| [1u16, 65535, 0, 7][i % 4]).collect();
+        let img = DepthImage::new(&depth, w, h).unwrap();
+        let k = Intrinsics { fx: 1e-3, fy: 1e6, cx: -0.5, cy: 29.5 };
+        let p = PredictParams { stride: 1, ..Default::default() }.check().unwrap();
+        for forest in [at_bounds, huge] {
+            let hyps = predict(&forest, &img, &k, &p).unwrap();
+            assert!(!hyps.is_empty());
+            for hy in &hyps {
+                assert!(hy.translation.iter().chain(&hy.quaternion).all(|v| v.is_finite()), "{hy:?}");
+            }
         }
     }
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from isa import atomic
 from isa.camera import Intrinsics
 
 #: Colours as in the paper's Fig. 6: ground truth red, Q1+Q2+Q3 green, Q1 blue; others follow.
@@ -81,7 +82,7 @@ def hypotheses_sheet(
         fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     path = Path(path)
-    fig.savefig(path, dpi=90)
+    atomic.write_with(path, lambda tmp: fig.savefig(tmp, dpi=90))
     plt.close(fig)
     return path
 
@@ -101,6 +102,6 @@ def recall_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: str
     ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=100)
+    atomic.write_with(path, lambda tmp: fig.savefig(tmp, dpi=100))
     plt.close(fig)
     return path

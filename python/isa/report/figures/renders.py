@@ -7,6 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
+from isa import atomic
 from isa.exceptions import InvalidValueError
 
 
@@ -59,8 +60,7 @@ def contact_sheet(
         cb = fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.6, pad=0.01)
         cb.set_label("depth [m]")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    atomic.write_with(path, lambda tmp: fig.savefig(tmp, dpi=dpi), parents=True)
     plt.close(fig)
     return path
 

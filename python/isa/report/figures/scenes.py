@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from isa import atomic
 from isa.evaluation.boxes3d import Box3D
 
 __all__ = ["box_edges_image", "draw_depth_boxes", "draw_top_view", "scene_figure", "GT_COLOR", "PRED_COLOR"]
@@ -126,6 +127,5 @@ def scene_figure(frame, predictions: Sequence[Box3D] = (), path: str | Path | No
     if path is None:
         return fig
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    atomic.write_with(path, lambda tmp: fig.savefig(tmp, dpi=dpi), parents=True)
     return path

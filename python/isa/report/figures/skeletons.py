@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from isa import atomic
 from isa.exceptions import InvalidValueError
 
 
@@ -51,8 +52,7 @@ def _axis3d(ax, points: np.ndarray, elev: float = 18, azim: float = -62) -> None
 
 def _save(fig, path) -> Path:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight")
+    atomic.write_with(path, lambda tmp: fig.savefig(tmp, bbox_inches="tight"), parents=True)
     _, plt = _plt()
     plt.close(fig)
     return path
