@@ -32,6 +32,7 @@
 //! bytes left, dtypes, shapes and finiteness, so a bad file gives an error naming the entry.
 
 use std::io::Write;
+use std::ops::Range;
 use std::path::Path;
 
 use crate::criterion::RawTargets;
@@ -353,6 +354,12 @@ pub fn encode(ts: &TrainSetData) -> Vec<u8> {
 
 /// Decodes and validates a training set; `path` only labels errors.
 pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
+    decode_located(bytes, path).map(|(ts, _)| ts)
+}
+
+/// [`decode`], also saying where each array's elements lie in `bytes` (name, byte range), so
+/// a reader can come back for rows of one array later ([`crate::shards`]).
+pub fn decode_located(bytes: &[u8], path: &str) -> Result<(TrainSetData, Vec<(String, Range<usize>)>)> {
     let bad = |reason: String| IsaError::InvalidInput(format!("training set {path}: {reason}"));
     if bytes.len() < 8 || &bytes[..8] != MAGIC {
         return Err(bad(
@@ -387,6 +394,7 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
         Ok(s)
     };
     let mut arrays: Vec<(String, NpyArray)> = Vec::new();
+    let mut located = Vec::new();
     let mut metadata = None;
     for k in 0..n_entries {
         let nl = u32::from_le_bytes(take(4, "an entry name")?.try_into().unwrap()) as usize;
@@ -407,10 +415,13 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
                         .map_err(|_| bad("entry metadata: not UTF-8".into()))?,
                 )
             }
-            (0, _) => arrays.push((
-                name.clone(),
-                npy_decode(data).map_err(|e| bad(format!("entry {name}: {e}")))?,
-            )),
+            (0, _) => {
+                let a = npy_decode(data).map_err(|e| bad(format!("entry {name}: {e}")))?;
+                // The elements are the entry's last bytes.
+                let end = data.as_ptr() as usize - bytes.as_ptr() as usize + data.len();
+                located.push((name.clone(), end - a.data.len()..end));
+                arrays.push((name.clone(), a));
+            }
             (1, _) => {}
             (other, _) => return Err(bad(format!("entry {name}: unknown kind {other}"))),
         }
@@ -511,13 +522,18 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
         metadata: metadata.unwrap_or_else(|| "{}".into()),
     };
     ts.validate().map_err(|e| bad(e.to_string()))?;
-    Ok(ts)
+    Ok((ts, located))
 }
 
 /// Validates and writes a training set (atomically: a temporary file, synced, then renamed).
 pub fn write(ts: &TrainSetData, path: &Path) -> Result<()> {
     ts.validate()?;
-    let bytes = encode(ts);
+    write_atomic(&encode(ts), path)
+}
+
+/// Writes `bytes` to `path` atomically: a temporary file beside it, synced, then renamed.
+// ATOMIC-HELPER: replace with the shared atomic-write helper when it lands (issue 20).
+pub(crate) fn write_atomic(bytes: &[u8], path: &Path) -> Result<()> {
     let io = |source| IsaError::Io {
         path: path.display().to_string(),
         source,
@@ -525,7 +541,7 @@ pub fn write(ts: &TrainSetData, path: &Path) -> Result<()> {
     let tmp = path.with_extension(format!("tmp{}", std::process::id()));
     let res = (|| {
         let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(&bytes)?;
+        f.write_all(bytes)?;
         f.sync_all()?;
         std::fs::rename(&tmp, path)
     })();

@@ -105,7 +105,7 @@ fn train(d: &Data, quality: Quality) -> Forest {
         parts: &d.parts,
         targets,
     };
-    Forest::fit(&params, &set, "{}", Some(2)).unwrap()
+    Forest::fit(&params.check().unwrap(), &set, Default::default(), Some(2)).unwrap()
 }
 
 /// A view between training views, shifted sideways, in a frame twice the size.
@@ -123,7 +123,7 @@ fn hypotheses(f: &Forest) -> Vec<Hypothesis> {
         stride: 2,
         ..Default::default()
     };
-    vote::predict(f, &img, &k, &p).unwrap()
+    vote::predict(f, &img, &k, &p.check().unwrap()).unwrap()
 }
 
 /// (rotation row-major, translation, score) of the first hypotheses.
@@ -169,7 +169,7 @@ fn q1_model_bytes_and_hypotheses_are_unchanged() {
     check(
         "Q1",
         &train(&d, Quality::Q1),
-        0x0cfa_a07f_2db5_8034,
+        0x785e_f8f5_95d2_5395,
         &[
             (
                 [
@@ -230,7 +230,7 @@ fn q1q2q3_model_bytes_and_hypotheses_are_unchanged() {
     check(
         "Q1+Q2+Q3",
         &train(&d, Quality::Q1Q2Q3),
-        0xfa3d_27f1_5992_8472,
+        0xa39e_0fea_b101_68f1,
         &[
             (
                 [
