@@ -31,7 +31,7 @@ use crate::depth::{DepthStore, Part};
 use crate::error::{IsaError, Result};
 use crate::model_io::fnv1a64;
 use crate::targets::WideTargets;
-use crate::trainset_io::{self, TrainSetData};
+use crate::trainset_io::{self, Located, TrainSetData};
 
 /// File name of the manifest inside a shard folder.
 pub const MANIFEST: &str = "manifest.json";
@@ -117,7 +117,7 @@ fn map(path: &Path) -> Result<memmap2::Mmap> {
 }
 
 /// Reads, validates and describes shard `file` of `dir`, with where its wide arrays lie.
-fn load_shard(dir: &Path, file: &str) -> Result<(ShardEntry, TrainSetData, Vec<(String, Range<usize>)>)> {
+fn load_shard(dir: &Path, file: &str) -> Result<(ShardEntry, TrainSetData, Located)> {
     let path = dir.join(file);
     let bytes = map(&path)?;
     let label = format!("shard {}", path.display());

@@ -357,9 +357,12 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
     decode_located(bytes, path).map(|(ts, _)| ts)
 }
 
+/// Where each array's elements lie in a file's bytes: (entry name, byte range).
+pub type Located = Vec<(String, Range<usize>)>;
+
 /// [`decode`], also saying where each array's elements lie in `bytes` (name, byte range), so
 /// a reader can come back for rows of one array later ([`crate::shards`]).
-pub fn decode_located(bytes: &[u8], path: &str) -> Result<(TrainSetData, Vec<(String, Range<usize>)>)> {
+pub fn decode_located(bytes: &[u8], path: &str) -> Result<(TrainSetData, Located)> {
     let bad = |reason: String| IsaError::InvalidInput(format!("training set {path}: {reason}"));
     if bytes.len() < 8 || &bytes[..8] != MAGIC {
         return Err(bad(

@@ -514,7 +514,7 @@ pub(crate) mod tests {
     fn toy_trainset(n_images: usize) -> crate::trainset_io::TrainSetData {
         let (store, parts, offsets, rotations) = toy(n_images);
         let p = parts.len();
-        let la: Vec<f32> = (0..2 * p).map(|k| ((k * 7919) % 628) as f32 * 0.01 - 3.14).collect();
+        let la: Vec<f32> = (0..2 * p).map(|k| ((k * 7919) % 628) as f32 * 0.01 - std::f32::consts::PI).collect();
         let no: Vec<f32> = (0..6 * p).map(|k| offsets[(k / 6) * 3 + k % 3] * 100.0 + (k % 6) as f32).collect();
         crate::trainset_io::TrainSetData {
             store,
