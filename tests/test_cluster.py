@@ -165,3 +165,29 @@ def test_cluster_rendering_writes_the_serial_renderers_frames(tmp_path, client):
         np.testing.assert_array_equal(a.R, b.R)
     # A finished instance is skipped on rerun.
     assert cluster.render_dataset(client, tmp_path / "dask", objects, n_views=2, view_seed=1, progress=False) == []
+
+
+def test_train_command_with_shards_writes_the_in_memory_model(tmp_path):
+    pytest.importorskip("pyrender")
+    from isa.forest import build
+
+    kw = dict(procedural=2, views=2, stride=8, trees=2, depth=6, progress=False)
+    a = build.train_category(None, "chair", tmp_path / "a.isa", **kw)
+    b = build.train_category(None, "chair", tmp_path / "b.isa", shards=tmp_path / "shards", **kw)
+    assert a.read_bytes() == b.read_bytes()
+    manifest = (tmp_path / "shards" / MANIFEST).read_text()
+    assert shard_name(1) in manifest and shard_name(2) in manifest
+
+
+def test_scale_flags_are_checked_before_any_work(tmp_path, capsys):
+    from isa.forest import build
+
+    out = tmp_path / "m.isa"
+    for argv, expect in [(["--cluster"], "need --shards"), (["--workers", "2"], "need --shards"),
+                         (["--shards", "s", "--workers", "2"], "apply with --cluster"),
+                         (["--shards", "s", "--cluster", "--scheduler", "tcp://x:1", "--workers", "2"], "has its own"),
+                         (["--shards", "s", "--mirror"], "not supported with --shards")]:
+        with pytest.raises(SystemExit):
+            build.main(["--procedural", "2", "--category", "chair", "-o", str(out), *argv])
+        assert expect in capsys.readouterr().err
+    assert not out.exists()
