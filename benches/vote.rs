@@ -98,17 +98,16 @@ fn chair_forest() -> Forest {
         quality: Quality::Q1,
         ..Default::default()
     };
-    let targets = RawTargets {
-        offsets: &offsets,
-        rotations: &rotations,
-        link_angles: None,
-        node_offsets: None,
-    };
-    Forest::fit(&params.clone().check().unwrap(), &TrainingSet {
+    let targets = RawTargets::pose(&offsets, &rotations);
+    Forest::fit(
+        &params.clone().check().unwrap(),
+        &TrainingSet {
             store: &store,
             parts: &parts,
             targets,
-        }, Default::default(), None,
+        },
+        Default::default(),
+        None,
     )
     .unwrap()
 }
@@ -170,7 +169,9 @@ fn frames() -> &'static Frames {
             let pp = PredictParams {
                 stride,
                 ..Default::default()
-            };
+            }
+            .check()
+            .unwrap();
             let iv = vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
             eprintln!(
                 "{scene} 640x480 ({valid} valid pixels), stride {stride}: {} parts, {} votes ({} trees, {} nodes)",
@@ -241,7 +242,9 @@ fn cpu_report() {
             let pp = PredictParams {
                 stride,
                 ..Default::default()
-            };
+            }
+            .check()
+            .unwrap();
             let iv = vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
             let mut store = DepthStore::new();
             store.push(640, 480, f.depth(scene)).unwrap();
@@ -287,7 +290,9 @@ fn bench(c: &mut Criterion) {
         let pp = PredictParams {
             stride,
             ..Default::default()
-        };
+        }
+        .check()
+        .unwrap();
         c.bench_function(
             &format!("predict/640x480_{scene}_10trees_stride{stride}"),
             |b| {
