@@ -111,6 +111,24 @@ class Forest:
         ``predict_defaults`` key in it is read as inference defaults) stored in the model file;
         predict_defaults: inference defaults (flat keys) overlaid on those; on_tree(trees_done)
         after each tree (its first exception is raised when training ends)."""
+    def fit_shards(
+        self,
+        shards: str | os.PathLike[str],
+        metadata: str = "{}",
+        on_tree: Callable[[int], object] | None = None,
+        predict_defaults: dict[str, Any] | None = None,
+    ) -> None:
+        """Trains from a shard folder (manifest.json + .isat shards): ``fit``'s bytes on the
+        shards' arrays concatenated; other arguments as ``fit``'s."""
+    def assemble(
+        self,
+        trees: list[bytes],
+        shards: str | os.PathLike[str],
+        metadata: str = "{}",
+        predict_defaults: dict[str, Any] | None = None,
+    ) -> None:
+        """The forest from ``ShardTrainer.fit_tree(t)`` of every tree, in order, on ``shards``
+        (its counts): ``fit_shards``'s bytes."""
     def save(self, path: str | os.PathLike[str]) -> None:
         """Writes the model atomically; ``IsaIOError`` on failure."""
     @staticmethod
@@ -237,3 +255,19 @@ def write_trainset(
 def read_trainset(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Reads a training-set file: ``images`` (list of uint16 arrays), ``parts``, ``offsets``,
     ``rotations``, ``link_angles`` / ``node_offsets`` (or None), ``metadata`` (str)."""
+
+SHARD_MANIFEST: str
+
+def write_shard_manifest(dir: str | os.PathLike[str], files: list[str]) -> str:
+    """Writes ``dir/manifest.json`` for the shards ``files`` (in training order), each read and
+    validated; returns the manifest JSON. Atomic."""
+
+class ShardTrainer:
+    """A shard folder opened and prepared for fitting single trees of the forest of ``params``
+    (keyword arguments as ``Forest``'s); one per cluster worker."""
+
+    def __init__(self, shards: str | os.PathLike[str], *, n_threads: int | None = None, **params: Any) -> None: ...
+    def fit_tree(self, t: int) -> bytes:
+        """Tree ``t``'s bytes, for ``Forest.assemble``."""
+    @property
+    def n_parts(self) -> int: ...

@@ -42,11 +42,10 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{
     cholesky_in_place, cholesky_in_place_scratch, LltRegularization,
 };
-use faer::{Mat, MatMut, Par, Side};
+use faer::{MatMut, Par};
 
 use crate::error::{IsaError, Result};
 use crate::params::Quality;
-use crate::rotation::quat_to_6d;
 
 /// Which target a block of the target vector holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -257,208 +256,7 @@ fn check_finite(name: &str, a: &[f32], w: usize) -> Result<()> {
     Ok(())
 }
 
-/// Builds the criterion's targets for `quality` (see the module doc for every step).
-pub fn build_targets(
-    raw: &RawTargets<'_>,
-    quality: Quality,
-    reduce_dims: usize,
-) -> Result<Targets> {
-    raw.validate()?;
-    let n = raw.n();
-    if n == 0 {
-        return Err(IsaError::InvalidInput("no parts".into()));
-    }
-    let links = if quality.uses_q2() {
-        Some(raw.link_angles.ok_or_else(|| {
-            IsaError::InvalidInput(format!("quality {} needs link_angles", quality.as_str()))
-        })?)
-    } else {
-        None
-    };
-    let nodes = if quality.uses_q3() {
-        Some(raw.node_offsets.ok_or_else(|| {
-            IsaError::InvalidInput(format!("quality {} needs node_offsets", quality.as_str()))
-        })?)
-    } else {
-        None
-    };
-
-    // Embedded, column-blocks as f64 (n × d each).
-    let mut blocks: Vec<(Term, usize, Vec<f64>)> = Vec::new();
-    blocks.push((
-        Term::Offset,
-        3,
-        raw.offsets.iter().map(|&v| v as f64).collect(),
-    ));
-    let mut rot = Vec::with_capacity(n * 6);
-    for q in raw.rotations.chunks_exact(4) {
-        rot.extend_from_slice(&quat_to_6d(q));
-    }
-    blocks.push((Term::Rotation, 6, rot));
-    if let Some((a, l)) = links {
-        let mut e = Vec::with_capacity(n * 2 * l);
-        for &v in a {
-            let v = v as f64;
-            e.push(v.cos());
-            e.push(v.sin());
-        }
-        blocks.push((Term::Links, 2 * l, e));
-    }
-    if let Some((s, w)) = nodes {
-        blocks.push((Term::Nodes, w, s.iter().map(|&v| v as f64).collect()));
-    }
-
-    // Standardise, then reduce a and s.
-    let mut dims = Vec::new();
-    let mut cols: Vec<Vec<f64>> = Vec::new();
-    for (term, d, mut data) in blocks {
-        standardise(&mut data, n, d);
-        let (data, d) =
-            if matches!(term, Term::Links | Term::Nodes) && reduce_dims > 0 && reduce_dims < d {
-                (pca_project(&data, n, d, reduce_dims)?, reduce_dims)
-            } else {
-                (data, d)
-            };
-        dims.push((term, d));
-        cols.push(data);
-    }
-    let layout = Layout::new(&dims);
-    let mut out = vec![0f32; n * layout.dim];
-    for (b, data) in layout.blocks.iter().zip(&cols) {
-        for i in 0..n {
-            for j in 0..b.dim {
-                out[i * layout.dim + b.start + j] = data[i * b.dim + j] as f32;
-            }
-        }
-    }
-    Ok(Targets {
-        layout,
-        data: out,
-        n,
-    })
-}
-
-/// Rows per parallel chunk of the column statistics (fixed, so sums do not depend on threads).
-const STAT_CHUNK: usize = 8192;
-
-/// Per-column sums of `f(row)` over `n × d` data, in parallel chunks combined in order.
-fn column_sums(data: &[f64], d: usize, f: impl Fn(&[f64], &mut [f64]) + Sync) -> Vec<f64> {
-    use rayon::prelude::*;
-    let parts: Vec<Vec<f64>> = data
-        .par_chunks(STAT_CHUNK * d)
-        .map(|ch| {
-            let mut acc = vec![0f64; d];
-            for r in ch.chunks_exact(d) {
-                f(r, &mut acc);
-            }
-            acc
-        })
-        .collect();
-    let mut out = vec![0f64; d];
-    for p in parts {
-        for (o, v) in out.iter_mut().zip(p) {
-            *o += v;
-        }
-    }
-    out
-}
-
-/// Centres each column and divides it by its population std (1 when below 1e-6).
-fn standardise(data: &mut [f64], n: usize, d: usize) {
-    use rayon::prelude::*;
-    if d == 0 || n == 0 {
-        return;
-    }
-    let mean: Vec<f64> = column_sums(data, d, |r, acc| {
-        for (a, v) in acc.iter_mut().zip(r) {
-            *a += v;
-        }
-    })
-    .into_iter()
-    .map(|s| s / n as f64)
-    .collect();
-    let var = column_sums(data, d, |r, acc| {
-        for ((a, v), m) in acc.iter_mut().zip(r).zip(&mean) {
-            *a += (v - m) * (v - m);
-        }
-    });
-    let scale: Vec<f64> = var
-        .iter()
-        .map(|v| {
-            let sd = (v / n as f64).sqrt();
-            if sd < 1e-6 {
-                1.0
-            } else {
-                1.0 / sd
-            }
-        })
-        .collect();
-    data.par_chunks_mut(STAT_CHUNK * d).for_each(|ch| {
-        for r in ch.chunks_exact_mut(d) {
-            for ((v, m), s) in r.iter_mut().zip(&mean).zip(&scale) {
-                *v = (*v - m) * s;
-            }
-        }
-    });
-}
-
-/// Projects centred `n × d` data on its top-`k` principal components (faer eigen).
-fn pca_project(data: &[f64], n: usize, d: usize, k: usize) -> Result<Vec<f64>> {
-    use rayon::prelude::*;
-    // Upper-triangular second moments, parallel chunks combined in order.
-    let tri: Vec<Vec<f64>> = data
-        .par_chunks(STAT_CHUNK * d)
-        .map(|ch| {
-            let mut acc = vec![0f64; d * d];
-            for r in ch.chunks_exact(d) {
-                for a in 0..d {
-                    let ra = r[a];
-                    let row = &mut acc[a * d..(a + 1) * d];
-                    for b in a..d {
-                        row[b] += ra * r[b];
-                    }
-                }
-            }
-            acc
-        })
-        .collect();
-    let mut cov = Mat::<f64>::zeros(d, d);
-    for t in &tri {
-        for a in 0..d {
-            for b in a..d {
-                cov[(a, b)] += t[a * d + b];
-            }
-        }
-    }
-    for a in 0..d {
-        for b in a..d {
-            let v = cov[(a, b)] / n as f64;
-            cov[(a, b)] = v;
-            cov[(b, a)] = v;
-        }
-    }
-    let evd = cov.self_adjoint_eigen(Side::Lower).map_err(|e| {
-        IsaError::InvalidInput(format!("principal components of the targets failed: {e:?}"))
-    })?;
-    let u = evd.U();
-    // Eigenvalues are nondecreasing: keep the last k columns, largest first.
-    let basis: Vec<f64> = (0..k)
-        .flat_map(|c| (0..d).map(move |a| (a, d - 1 - c)))
-        .map(|(a, col)| u[(a, col)])
-        .collect();
-    let mut out = vec![0f64; n * k];
-    out.par_chunks_mut(STAT_CHUNK * k)
-        .zip(data.par_chunks(STAT_CHUNK * d))
-        .for_each(|(o, ch)| {
-            for (orow, r) in o.chunks_exact_mut(k).zip(ch.chunks_exact(d)) {
-                for (c, ov) in orow.iter_mut().enumerate() {
-                    let b = &basis[c * d..(c + 1) * d];
-                    *ov = r.iter().zip(b).map(|(x, y)| x * y).sum();
-                }
-            }
-        });
-    Ok(out)
-}
+pub use crate::targets::build_targets;
 
 /// Dimension up to which the inline Cholesky is used instead of faer.
 const SMALL_DIM: usize = 8;
@@ -745,6 +543,7 @@ pub fn term_gains(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rotation::quat_to_6d;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 

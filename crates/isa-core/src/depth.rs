@@ -53,6 +53,15 @@ impl DepthStore {
         Self::default()
     }
 
+    /// An empty store with room for `images` images of `pixels` pixels in all (no reallocation
+    /// while they are pushed, so peak memory is what they need).
+    pub fn with_capacity(images: usize, pixels: usize) -> Self {
+        DepthStore {
+            data: Vec::with_capacity(pixels + 1),
+            index: Vec::with_capacity(images),
+        }
+    }
+
     /// Appends a `height` x `width` row-major image; returns its index.
     pub fn push(&mut self, width: usize, height: usize, pixels: &[u16]) -> Result<usize> {
         if width == 0 || height == 0 || width > 1 << 15 || height > 1 << 15 {

@@ -91,31 +91,35 @@ pub fn encode(forest: &Forest) -> Vec<u8> {
 pub(crate) fn encode_trees(p: &mut Vec<u8>, forest: &Forest) {
     p.extend_from_slice(&(forest.trees.len() as u32).to_le_bytes());
     for t in &forest.trees {
-        p.extend_from_slice(&(t.nodes.len() as u32).to_le_bytes());
-        for n in &t.nodes {
-            p.push(n.is_leaf as u8);
-            p.extend_from_slice(&n.child.to_le_bytes());
-            put_f32s(
-                p,
-                &[
-                    n.threshold,
-                    n.feature.u[0],
-                    n.feature.u[1],
-                    n.feature.v[0],
-                    n.feature.v[1],
-                ],
-            );
-        }
-        p.extend_from_slice(&(t.n_leaves() as u32).to_le_bytes());
-        for o in &t.leaf_offsets {
-            p.extend_from_slice(&o.to_le_bytes());
-        }
-        p.extend_from_slice(&(t.votes.len() as u32).to_le_bytes());
-        for v in &t.votes {
-            put_f32s(p, &[v.weight]);
-            put_f32s(p, &v.offset);
-            put_f32s(p, &v.rotation);
-        }
+        put_tree(p, t);
+    }
+}
+
+fn put_tree(p: &mut Vec<u8>, t: &Tree) {
+    p.extend_from_slice(&(t.nodes.len() as u32).to_le_bytes());
+    for n in &t.nodes {
+        p.push(n.is_leaf as u8);
+        p.extend_from_slice(&n.child.to_le_bytes());
+        put_f32s(
+            p,
+            &[
+                n.threshold,
+                n.feature.u[0],
+                n.feature.u[1],
+                n.feature.v[0],
+                n.feature.v[1],
+            ],
+        );
+    }
+    p.extend_from_slice(&(t.n_leaves() as u32).to_le_bytes());
+    for o in &t.leaf_offsets {
+        p.extend_from_slice(&o.to_le_bytes());
+    }
+    p.extend_from_slice(&(t.votes.len() as u32).to_le_bytes());
+    for v in &t.votes {
+        put_f32s(p, &[v.weight]);
+        put_f32s(p, &v.offset);
+        put_f32s(p, &v.rotation);
     }
 }
 
@@ -201,6 +205,88 @@ fn legacy_metadata(raw: String) -> R<(ModelMetadata, crate::params::Valid<Predic
     }
 }
 
+/// One tree (after the trees count), checked for structure; `ti` names it in errors.
+fn read_tree(r: &mut Reader<'_>, ti: usize) -> R<Tree> {
+    let n_nodes = r.count(NODE_BYTES, "nodes")?;
+    if n_nodes == 0 {
+        return Err(format!("tree {ti} has no nodes"));
+    }
+    let mut nodes = Vec::with_capacity(n_nodes);
+    for _ in 0..n_nodes {
+        let is_leaf = match r.u8()? {
+            0 => false,
+            1 => true,
+            x => return Err(format!("tree {ti}: bad node kind {x}")),
+        };
+        let child = r.u32()?;
+        let threshold = r.f32()?;
+        let u = [r.f32()?, r.f32()?];
+        let v = [r.f32()?, r.f32()?];
+        nodes.push(Node {
+            feature: Feature { u, v },
+            threshold,
+            child,
+            is_leaf,
+        });
+    }
+    let n_leaves = r.count(4, "leaves")?;
+    let mut leaf_offsets = Vec::with_capacity(n_leaves + 1);
+    for _ in 0..=n_leaves {
+        leaf_offsets.push(r.u32()?);
+    }
+    let n_votes = r.count(VOTE_BYTES, "votes")?;
+    let mut votes = Vec::with_capacity(n_votes);
+    for _ in 0..n_votes {
+        let weight = r.f32()?;
+        let offset = [r.f32()?, r.f32()?, r.f32()?];
+        let rotation = [r.f32()?, r.f32()?, r.f32()?, r.f32()?];
+        votes.push(Vote {
+            weight,
+            offset,
+            rotation,
+        });
+    }
+    let tree = Tree {
+        nodes,
+        leaf_offsets,
+        votes,
+    };
+    // Structure and values, so that what loads predicts finite poses.
+    tree.validate().map_err(|e| format!("tree {ti}: {e}"))?;
+    Ok(tree)
+}
+
+/// Magic of a lone tree's bytes ([`encode_tree`]).
+const TREE_MAGIC: &[u8; 8] = b"ISATREE1";
+
+/// One tree's bytes (the model file's tree encoding, magic and checksum): how a tree fitted
+/// on another machine ([`Forest::fit_tree`](crate::Forest::fit_tree)) travels to the assembly.
+pub fn encode_tree(tree: &Tree) -> Vec<u8> {
+    let mut p = TREE_MAGIC.to_vec();
+    put_tree(&mut p, tree);
+    let sum = fnv1a64(&p);
+    p.extend_from_slice(&sum.to_le_bytes());
+    p
+}
+
+/// Decodes [`encode_tree`]'s bytes; `what` names them in errors.
+pub fn decode_tree(bytes: &[u8], what: &str) -> Result<Tree> {
+    let err = |reason: String| IsaError::InvalidInput(format!("{what}: {reason}"));
+    if bytes.len() < 16 || &bytes[..8] != TREE_MAGIC {
+        return Err(err("not an isa tree (wrong magic bytes or truncated)".into()));
+    }
+    let (body, tail) = bytes.split_at(bytes.len() - 8);
+    if fnv1a64(body) != u64::from_le_bytes(tail.try_into().expect("8 bytes")) {
+        return Err(err("checksum mismatch (truncated or corrupted)".into()));
+    }
+    let mut r = Reader { b: &body[8..], pos: 0 };
+    let tree = read_tree(&mut r, 0).map_err(err)?;
+    if r.left() != 0 {
+        return Err(err(format!("{} unexpected bytes after the tree", r.left())));
+    }
+    Ok(tree)
+}
+
 /// Parses a payload of format `version` (after header checks). Exposed for fuzzing.
 pub fn decode_payload(payload: &[u8], version: u32) -> R<Forest> {
     let mut r = Reader { b: payload, pos: 0 };
@@ -223,52 +309,7 @@ pub fn decode_payload(payload: &[u8], version: u32) -> R<Forest> {
     let n_trees = r.count(12, "trees")?;
     let mut trees = Vec::with_capacity(n_trees);
     for ti in 0..n_trees {
-        let n_nodes = r.count(NODE_BYTES, "nodes")?;
-        if n_nodes == 0 {
-            return Err(format!("tree {ti} has no nodes"));
-        }
-        let mut nodes = Vec::with_capacity(n_nodes);
-        for _ in 0..n_nodes {
-            let is_leaf = match r.u8()? {
-                0 => false,
-                1 => true,
-                x => return Err(format!("tree {ti}: bad node kind {x}")),
-            };
-            let child = r.u32()?;
-            let threshold = r.f32()?;
-            let u = [r.f32()?, r.f32()?];
-            let v = [r.f32()?, r.f32()?];
-            nodes.push(Node {
-                feature: Feature { u, v },
-                threshold,
-                child,
-                is_leaf,
-            });
-        }
-        let n_leaves = r.count(4, "leaves")?;
-        let mut leaf_offsets = Vec::with_capacity(n_leaves + 1);
-        for _ in 0..=n_leaves {
-            leaf_offsets.push(r.u32()?);
-        }
-        let n_votes = r.count(VOTE_BYTES, "votes")?;
-        let mut votes = Vec::with_capacity(n_votes);
-        for _ in 0..n_votes {
-            let weight = r.f32()?;
-            let offset = [r.f32()?, r.f32()?, r.f32()?];
-            let rotation = [r.f32()?, r.f32()?, r.f32()?, r.f32()?];
-            votes.push(Vote {
-                weight,
-                offset,
-                rotation,
-            });
-        }
-        let tree = Tree {
-            nodes,
-            leaf_offsets,
-            votes,
-        };
-        tree.validate().map_err(|e| format!("tree {ti}: {e}"))?;
-        trees.push(tree);
+        trees.push(read_tree(&mut r, ti)?);
     }
     if r.left() != 0 {
         return Err(format!("{} unexpected bytes after the last tree", r.left()));

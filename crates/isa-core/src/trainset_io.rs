@@ -34,6 +34,7 @@
 //! within 1e-3, offsets within ±1e3 m, parts inside their image on depth > 0), so a bad file
 //! gives an error naming the entry.
 
+use std::ops::Range;
 use std::path::Path;
 
 use crate::criterion::RawTargets;
@@ -374,6 +375,15 @@ fn container(entries: &[(&str, u8, &[u8])]) -> Vec<u8> {
 
 /// Decodes and validates a training set; `path` only labels errors.
 pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
+    decode_located(bytes, path).map(|(ts, _)| ts)
+}
+
+/// Where each array's elements lie in a file's bytes: (entry name, byte range).
+pub type Located = Vec<(String, Range<usize>)>;
+
+/// [`decode`], also saying where each array's elements lie in `bytes` (name, byte range), so
+/// a reader can come back for rows of one array later ([`crate::shards`]).
+pub fn decode_located(bytes: &[u8], path: &str) -> Result<(TrainSetData, Located)> {
     let bad = |reason: String| IsaError::InvalidInput(format!("training set {path}: {reason}"));
     if bytes.len() < 8 || &bytes[..8] != MAGIC {
         return Err(bad(
@@ -408,6 +418,7 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
         Ok(s)
     };
     let mut arrays: Vec<(String, NpyArray)> = Vec::new();
+    let mut located = Vec::new();
     let mut metadata = None;
     for k in 0..n_entries {
         let nl = u32::from_le_bytes(take(4, "an entry name")?.try_into().unwrap()) as usize;
@@ -431,10 +442,13 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
                         .map_err(|_| bad("entry metadata: not UTF-8".into()))?,
                 )
             }
-            (0, _) if known_array => arrays.push((
-                name.clone(),
-                npy_decode(data).map_err(|e| bad(format!("entry {name}: {e}")))?,
-            )),
+            (0, _) if known_array => {
+                let a = npy_decode(data).map_err(|e| bad(format!("entry {name}: {e}")))?;
+                // The elements are the entry's last bytes.
+                let end = data.as_ptr() as usize - bytes.as_ptr() as usize + data.len();
+                located.push((name.clone(), end - a.data.len()..end));
+                arrays.push((name.clone(), a));
+            }
             (k, "metadata") => {
                 return Err(bad(format!("entry metadata: kind {k}, expected 1 (text)")))
             }
@@ -547,7 +561,7 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<TrainSetData> {
         metadata: metadata.unwrap_or_else(|| "{}".into()),
     };
     ts.validate().map_err(|e| bad(e.to_string()))?;
-    Ok(ts)
+    Ok((ts, located))
 }
 
 /// Validates and writes a training set atomically ([`crate::atomic`]).
@@ -632,7 +646,7 @@ mod tests {
         assert_eq!(one.shape, vec![1]);
         // A header as NumPy 2 writes it (shape of a 1-D array, version 1.0).
         let mut h = b"{'descr': '<i4', 'fortran_order': False, 'shape': (2,), }".to_vec();
-        while (10 + h.len() + 1) % 64 != 0 {
+        while !(10 + h.len() + 1).is_multiple_of(64) {
             h.push(b' ');
         }
         h.push(b'\n');

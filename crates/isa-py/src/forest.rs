@@ -8,6 +8,7 @@
 //! nor waits for them (pyo3's mutable borrow raised a generic `RuntimeError: Already
 //! borrowed`).
 
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 
@@ -18,7 +19,9 @@ use pyo3::types::{PyBytes, PyDict, PyList};
 
 use isa_core::criterion::RawTargets;
 use isa_core::metadata::split_metadata;
-use isa_core::{Forest, ForestParams, TrainingSet, Valid};
+use isa_core::model_io::decode_tree;
+use isa_core::shards::{Manifest, ShardSet};
+use isa_core::{Forest, ForestParams, ModelMetadata, PredictParams, TrainingSet, Valid};
 
 use crate::arrays::{depth_store, f32_array, given, matrix, parts as parts_arg, rows, vector};
 use crate::errors::{input_err, to_py};
@@ -88,6 +91,57 @@ fn metadata_arg(o: &Bound<'_, PyAny>) -> PyResult<String> {
     scalars::text(o, "metadata")
 }
 
+impl PyForest {
+    /// Keeps a trained forest (with the parameters it was trained with and its inference
+    /// defaults); the first error of the progress hook, if any, is raised now.
+    fn finish(
+        &self,
+        params: Valid<ForestParams>,
+        forest: isa_core::Result<Forest>,
+        defaults: Valid<PredictParams>,
+        hook_err: Mutex<Option<PyErr>>,
+    ) -> PyResult<()> {
+        let mut forest = forest.map_err(to_py)?;
+        forest.predict_defaults = defaults;
+        if let Some(e) = hook_err.into_inner().unwrap_or_else(|p| p.into_inner()) {
+            return Err(e);
+        }
+        self.set_state(State {
+            params,
+            forest: Some(Arc::new(forest)),
+        });
+        Ok(())
+    }
+}
+
+/// A model's metadata and inference defaults from ``metadata`` JSON and ``predict_defaults``.
+fn model_defaults(
+    metadata: &str,
+    predict_defaults: Option<&Bound<'_, PyDict>>,
+) -> PyResult<(ModelMetadata, Valid<PredictParams>)> {
+    let (meta, defaults) = split_metadata(metadata, "metadata", false).map_err(to_py)?;
+    let defaults = defaults
+        .with_overrides(&kwargs_json(predict_defaults)?, "predict_defaults")
+        .map_err(to_py)?;
+    Ok((meta, defaults))
+}
+
+/// The per-tree callback of ``on_tree``; its first exception is kept in `err`.
+fn tree_hook<'a>(
+    on_tree: &'a Option<Py<PyAny>>,
+    err: &'a Mutex<Option<PyErr>>,
+) -> impl Fn(usize) + Sync + 'a {
+    move |done: usize| {
+        if let Some(cb) = on_tree {
+            Python::attach(|py| {
+                if let Err(e) = cb.call1(py, (done,)) {
+                    err.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                }
+            });
+        }
+    }
+}
+
 const STATE_UNFITTED: &[u8] = b"ISA-UNFITTED\0";
 
 #[pymethods]
@@ -123,10 +177,7 @@ impl PyForest {
         on_tree: Option<Py<PyAny>>,
         predict_defaults: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<()> {
-        let (meta, defaults) = split_metadata(&metadata, "metadata", false).map_err(to_py)?;
-        let defaults = defaults
-            .with_overrides(&kwargs_json(predict_defaults)?, "predict_defaults")
-            .map_err(to_py)?;
+        let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
         let n = parts.len();
@@ -153,27 +204,56 @@ impl PyForest {
                 parts: &parts,
                 targets: raw,
             };
-            let hook = |done: usize| {
-                if let Some(cb) = &on_tree {
-                    Python::attach(|py| {
-                        if let Err(e) = cb.call1(py, (done,)) {
-                            hook_err.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
-                        }
-                    });
-                }
-            };
-            Forest::fit_with_progress(&params, &data, meta, threads, &hook)
+            Forest::fit_with_progress(&params, &data, meta, threads, &tree_hook(&on_tree, &hook_err))
         });
-        let mut forest = forest.map_err(to_py)?;
-        forest.predict_defaults = defaults;
-        if let Some(e) = hook_err.into_inner().unwrap_or_else(|p| p.into_inner()) {
-            return Err(e);
-        }
-        self.set_state(State {
-            params,
-            forest: Some(Arc::new(forest)),
+        self.finish(params, forest, defaults, hook_err)
+    }
+
+    /// Trains from a shard folder (``isa_core::shards``: ``manifest.json`` and its ``.isat``
+    /// shards); the same model bytes as ``fit`` on the shards' arrays concatenated. Arguments
+    /// as ``fit``'s.
+    #[pyo3(signature = (shards, metadata=String::from("{}"), on_tree=None, predict_defaults=None))]
+    fn fit_shards(
+        &self,
+        py: Python<'_>,
+        shards: PathBuf,
+        #[pyo3(from_py_with = metadata_arg)] metadata: String,
+        on_tree: Option<Py<PyAny>>,
+        predict_defaults: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<()> {
+        let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
+        let params = self.state().params;
+        let threads = self.threads();
+        let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
+        let forest = py.detach(|| {
+            let set = ShardSet::open(&shards)?;
+            Forest::fit_shards(&params, &set, meta, threads, &tree_hook(&on_tree, &hook_err))
         });
-        Ok(())
+        self.finish(params, forest, defaults, hook_err)
+    }
+
+    /// Assembles the forest from its trees' bytes (``ShardTrainer.fit_tree(t)`` for every tree
+    /// ``t``, in order) and the shard folder they were fitted on (for its counts): the model
+    /// ``fit_shards`` makes, to the byte. ``metadata`` and ``predict_defaults`` as in ``fit``.
+    #[pyo3(signature = (trees, shards, metadata=String::from("{}"), predict_defaults=None))]
+    fn assemble(
+        &self,
+        trees: Vec<Vec<u8>>,
+        shards: PathBuf,
+        #[pyo3(from_py_with = metadata_arg)] metadata: String,
+        predict_defaults: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<()> {
+        let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
+        let params = self.state().params;
+        let manifest = Manifest::read(&shards).map_err(to_py)?;
+        let trees = trees
+            .iter()
+            .enumerate()
+            .map(|(t, b)| decode_tree(b, &format!("trees[{t}]")))
+            .collect::<isa_core::Result<Vec<_>>>()
+            .map_err(to_py)?;
+        let forest = Forest::assemble(&params, trees, meta, &ShardSet::counts(&manifest));
+        self.finish(params, forest, defaults, Mutex::new(None))
     }
 
     /// Saves the model atomically (temporary file + rename).

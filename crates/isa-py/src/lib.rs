@@ -17,6 +17,7 @@ pub mod params;
 pub mod predict;
 pub mod scalars;
 pub mod testing;
+pub mod shards;
 pub mod trainset;
 
 #[pymodule]
@@ -32,6 +33,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(features::depth_features, m)?)?;
     predict::register(m)?;
     trainset::register(m)?;
+    shards::register(m)?;
     m.add_submodule(&testing::submodule(m.py())?)?;
     Ok(())
 }

@@ -346,6 +346,11 @@ class FrameSequence(_LazyFrames):
                 self._keys.append((sid, im))
                 self.obj_ids.append(int(cache["gt"][str(im)][0]["obj_id"]))
 
+    @property
+    def keys(self) -> list[tuple[int, int]]:
+        """``(scene id, image id)`` of every frame, in order."""
+        return list(self._keys)
+
     def _frame(self, i: int) -> BopFrame:
         sid, im = self._keys[i]
         return read_frame(self.root, self.split, sid, im, self._cache[sid])

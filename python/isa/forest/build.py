@@ -281,7 +281,8 @@ def train_category(
     views: int = PAPER_VIEWS, stride: int = DEFAULT_STRIDE, quality: str = "Q1+Q2+Q3", trees: int = 10,
     depth: int = ForestParams.max_depth, candidates: int = ForestParams.n_candidates, mirror: bool = False,
     canonical: bool = False, height: float | None = None, up: str = "z", centre: str | None = None, seed: int = 0,
-    cache: str | os.PathLike | None = None, progress: bool = True,
+    cache: str | os.PathLike | None = None, progress: bool = True, shards: str | os.PathLike | None = None,
+    cluster: bool = False, scheduler: str | None = None, workers: int | None = None,
 ) -> Path:
     """Train a ``category`` model on ``meshes`` (files, folders, globs or a ModelNet10 root; or
     ``procedural=N``) and write it to ``out``; returns ``out``.
@@ -292,7 +293,14 @@ def train_category(
     instance (required for categories without a size table); ``up``: the files' up axis, "z"
     (ModelNet's) or "y" (glTF's, front +z). ``centre``: the origin rule
     (:data:`isa.privileged.ssc.CENTRES`; default the category's, the centre of mass for others).
-    ``cache``: folder that makes reruns skip finished work (module docstring). Errors
+    ``cache``: folder that makes reruns skip finished work (module docstring).
+
+    ``shards``: a folder for the training set as shards (:mod:`isa.forest.shards`), written as
+    annotation goes and trained from without holding the set in memory (the renders go there
+    too unless ``cache``); the model bytes are those of the in-memory run. ``cluster``: render,
+    annotate and train on Dask (:mod:`isa.cluster`; needs ``shards``): a local cluster of
+    ``workers`` processes, or the cluster at ``scheduler`` (then ``shards`` and ``cache`` must be
+    on storage every worker reads). Errors
     (``DataError``) name the file or argument at fault and come before any output is written; the
     model is written atomically.
     """
@@ -307,6 +315,7 @@ def train_category(
         raise DataError(f"--views and --stride must be positive, got {views} and {stride}")
     params = ForestParams(n_trees=trees, max_depth=depth, n_candidates=candidates, quality=quality, seed=seed)
     _check_output(out)
+    _check_scale(shards, cluster, scheduler, workers, mirror, canonical)
     cache_dir = Path(cache) if cache is not None else None
     if cache_dir is not None:
         try:
@@ -320,6 +329,14 @@ def train_category(
     centre = centre or CENTRE.get(category, "com")
     prepared = pipeline.prepare_category(category, objects, progress=progress, centre=centre, template=template,
                                          extract=extract)
+
+    if shards is not None:
+        forest = _train_sharded(prepared, Path(shards), cache_dir, params, views=views, stride=stride, seed=seed,
+                                height=height, up=up, template_source=template_source, progress=progress,
+                                cluster=cluster, scheduler=scheduler, workers=workers)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        forest.save(out)
+        return out
 
     from isa.render.dataset import render_dataset
 
@@ -339,6 +356,65 @@ def train_category(
                                    progress=progress)
     forest.save(out)  # atomic: a temporary file renamed over ``out``
     return out
+
+
+def _check_scale(shards, cluster: bool, scheduler: str | None, workers: int | None, mirror: bool,
+                 canonical: bool) -> None:
+    if (cluster or scheduler is not None or workers is not None) and shards is None:
+        raise DataError("--cluster / --scheduler / --workers need --shards DIR (the folder the workers share)")
+    if (scheduler is not None or workers is not None) and not cluster:
+        raise DataError("--scheduler and --workers apply with --cluster")
+    if scheduler is not None and workers is not None:
+        raise DataError("--workers sizes the local cluster; an existing one (--scheduler) has its own")
+    if shards is not None and (mirror or canonical):
+        raise DataError("--mirror / --canonical are not supported with --shards yet")
+
+
+def _train_sharded(prepared, shards: Path, cache_dir: Path | None, params: ForestParams, *, views: int, stride: int,
+                   seed: int, height, up: str, template_source: str, progress: bool, cluster: bool,
+                   scheduler: str | None, workers: int | None):
+    """Render, annotate into ``shards`` and train from them (on the cluster when ``cluster``)."""
+    from contextlib import nullcontext
+
+    from isa import pipeline
+    from isa.forest.model import Forest
+    from isa.forest.shards import annotate_to_shards
+    from isa.render.dataset import render_dataset
+
+    try:
+        shards.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"--shards: cannot create {shards} ({exc.strerror})") from None
+    base = cache_dir / "renders" if cache_dir is not None else shards / "renders"
+    data = base / f"{prepared.category}-{_render_key(prepared.objects, views, seed)}"
+    if cluster:
+        from isa import cluster as dask_cluster
+
+        connection = dask_cluster.connect(scheduler, workers or dask_cluster.DEFAULT_WORKERS)
+    else:
+        connection = nullcontext()
+    with connection as client:
+        if client is not None:
+            dask_cluster.render_dataset(client, data, prepared.objects, "train", n_views=views, view_seed=seed,
+                                        progress=progress)
+        else:
+            render_dataset(data, prepared.objects, split="train", n_views=views, view_seed=seed, progress=progress)
+        frames = pipeline.load_frames(data, "train", lazy=True)
+        if client is not None:
+            norms = dask_cluster.annotate_to_shards(client, data, "train", prepared.skeletons, shards, stride=stride,
+                                                    quality=params.quality, progress=progress)
+        else:
+            norms = annotate_to_shards(frames, prepared.skeletons, shards, stride=stride, quality=params.quality,
+                                       progress=progress)
+        params = pipeline.scaled_params(params, norms, frames[0].intrinsics.fx)
+        summary = training_summary(prepared, views=views, stride=stride, seed=seed, mirror=False, canonical=False,
+                                   images=len(frames), parts=len(norms), height=height, up=up,
+                                   template=template_source)
+        metadata = model_metadata(prepared, params.quality, summary)
+        metadata["predict_defaults"] = pipeline.scaled_predict_defaults(norms)
+        if client is not None:
+            return dask_cluster.fit_forest(client, shards, params, metadata, progress=progress)
+        return Forest(params).fit_shards(shards, metadata, progress=progress)
 
 
 # -- command line ----------------------------------------------------------------------------
@@ -363,6 +439,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--canonical", action="store_true", help="label turn-symmetric instances with one canonical pose")
     p.add_argument("--centre", choices=CENTRES, help="object-frame origin (default: the category's; com for others)")
     p.add_argument("--cache", type=Path, help="folder of skeletons and renders kept between runs (rerun skips them)")
+    p.add_argument("--shards", type=Path, metavar="DIR",
+                   help="write the training set as shards in DIR and train from them (sets larger than memory)")
+    p.add_argument("--cluster", action="store_true",
+                   help="render, annotate and train on Dask (a local cluster unless --scheduler; needs --shards)")
+    p.add_argument("--scheduler", metavar="ADDR", help="address of an existing Dask scheduler (tcp://host:8786)")
+    p.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster (default 2)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
@@ -375,7 +457,8 @@ def main(argv: list[str] | None = None) -> None:
         path = train_category(a.meshes or None, a.category, a.out, procedural=a.procedural, instances=a.instances,
                               views=a.views, stride=a.stride, quality=a.quality, trees=a.trees, depth=a.depth,
                               candidates=a.candidates, mirror=a.mirror, canonical=a.canonical, height=a.height, up=a.up,
-                              centre=a.centre, seed=a.seed, cache=a.cache, progress=not a.quiet)
+                              centre=a.centre, seed=a.seed, cache=a.cache, progress=not a.quiet, shards=a.shards,
+                              cluster=a.cluster, scheduler=a.scheduler, workers=a.workers)
     except IsaError as exc:
         ap.exit(2, f"error: {exc}\n")
     print(f"model: {path}")

@@ -148,6 +148,25 @@ class Forest:
                            predict_defaults=predict_defaults)
         return self
 
+    def fit_shards(self, shards: str | os.PathLike[str], metadata: dict[str, Any] | str | None = None,
+                   progress: bool = False, predict_defaults: dict[str, Any] | None = None) -> Forest:
+        """Trains from a shard folder (:mod:`isa.forest.shards`) and returns ``self``: the model
+        :meth:`fit` makes from the shards' arrays concatenated, to the byte, holding in memory
+        only what the trees read (docs/cluster.md). Other arguments as :meth:`fit`'s."""
+        meta = _metadata_json(metadata)
+        with tqdm(total=self.params.n_trees, desc="train", unit="tree", disable=not progress, leave=False) as bar:
+            self._core.fit_shards(os.fspath(shards), meta,
+                                  on_tree=(lambda done: bar.update(done - bar.n)) if progress else None,
+                                  predict_defaults=predict_defaults)
+        return self
+
+    def assemble(self, trees: list[bytes], shards: str | os.PathLike[str], metadata: dict[str, Any] | str | None = None,
+                 predict_defaults: dict[str, Any] | None = None) -> Forest:
+        """This forest from its trees fitted apart (``isa._core.ShardTrainer.fit_tree(t)`` for
+        every ``t``, in order) on ``shards``: the model :meth:`fit_shards` makes. Returns ``self``."""
+        self._core.assemble(list(trees), os.fspath(shards), _metadata_json(metadata), predict_defaults=predict_defaults)
+        return self
+
     # -- files -------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> None:
         """Writes the model file atomically (temporary file + rename)."""

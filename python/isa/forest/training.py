@@ -46,26 +46,33 @@ PROBE_REACH = 0.7
 VOTE_BANDWIDTH = 0.09
 
 
-def parts_diameter(ts: TrainingSet) -> float:
+def parts_diameter(ts: TrainingSet | np.ndarray) -> float:
     """The objects' diameter as the training parts see it: twice the 95th percentile of the
-    parts' distance to the SSC (metres)."""
-    if len(ts) == 0:
+    parts' distance to the SSC (metres). ``ts``: a training set, or those distances
+    (:func:`offset_norms`, e.g. gathered from shards)."""
+    norms = offset_norms(ts) if isinstance(ts, TrainingSet) else np.asarray(ts)
+    if len(norms) == 0:
         raise DataError("parts_diameter: the training set has no parts")
-    return float(2 * np.percentile(np.linalg.norm(ts.offsets, axis=1), 95))
+    return float(2 * np.percentile(norms, 95))
 
 
-def scaled_max_offset(ts: TrainingSet, fx: float) -> float:
+def offset_norms(ts: TrainingSet) -> np.ndarray:
+    """Each part's distance to the SSC, (P,) float32 (what :func:`parts_diameter` ranks)."""
+    return np.linalg.norm(ts.offsets, axis=1)
+
+
+def scaled_max_offset(ts: TrainingSet | np.ndarray, fx: float) -> float:
     """``ForestParams.max_offset`` (pixel·metres) reaching :data:`PROBE_REACH` of the objects'
     diameter, for a camera of focal length ``fx`` pixels; clipped to [50, 2000]."""
     return float(np.clip(PROBE_REACH * parts_diameter(ts) * fx, 50.0, 2000.0))
 
 
-def scaled_params(params: ForestParams, ts: TrainingSet, fx: float) -> ForestParams:
+def scaled_params(params: ForestParams, ts: TrainingSet | np.ndarray, fx: float) -> ForestParams:
     """``params`` with ``max_offset`` scaled to the objects' size (:func:`scaled_max_offset`)."""
     return replace(params, max_offset=scaled_max_offset(ts, fx))
 
 
-def scaled_predict_defaults(ts: TrainingSet) -> dict:
+def scaled_predict_defaults(ts: TrainingSet | np.ndarray) -> dict:
     """Size-aware inference defaults, stored as the model's ``predict_defaults`` and applied by its ``predict``."""
     return {"position_bandwidth": round(VOTE_BANDWIDTH * parts_diameter(ts), 4)}
 

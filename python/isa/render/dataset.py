@@ -174,11 +174,8 @@ def render_dataset(
     """
     t0 = time.perf_counter()
     out_root = Path(out_root)
-    if not objects:
-        raise DataError("render_dataset: no objects to render")
+    _check_objects(objects)
     ids = [o.obj_id for o in objects]
-    if len(set(ids)) != len(ids):
-        raise DataError(f"render_dataset: duplicate obj_id in {ids}")
     if renderer is not None and renderer.intrinsics != intrinsics:
         raise InvalidValueError("render_dataset: the renderer's intrinsics differ from `intrinsics`")
     views_id = "given" if isinstance(views, Views) else ("callable" if callable(views) else f"default-fit:{n_views}:{view_seed}")
@@ -186,10 +183,7 @@ def render_dataset(
     check_settings(out_root / split / "isa_render.json", _settings(intrinsics, depth_scale, noise, views_id))
     _write_models(out_root, objects)
 
-    per_obj = []
-    for o in objects:
-        v = views if isinstance(views, Views) else (views(o) if callable(views) else default_views(o, n_views, view_seed, intrinsics))
-        per_obj.append(v)
+    per_obj = [_views_of(o, views, n_views, view_seed, intrinsics) for o in objects]
     summary = RenderSummary(scenes=ids)
     total = sum(len(v) for v in per_obj)
     own = renderer is None
@@ -201,32 +195,87 @@ def render_dataset(
     try:
         with tqdm(total=total, desc=f"render {split}", unit="frame", disable=not progress) as bar:
             for o, v in zip(objects, per_obj):
-                with bop.SceneWriter(out_root, split, o.obj_id, depth_scale) as writer:
-                    pending: deque = deque()
-                    for im_id in range(len(v)):
-                        if writer.has_frame(im_id):
-                            summary.skipped += 1
-                            bar.update(1)
-                            continue
-                        R, t = v[im_id]
-                        depth, mask = renderer.render(o.mesh, R, t)
-                        if noise is not None:
-                            depth = apply_kinect_noise(depth, intrinsics, [noise_seed, o.obj_id, im_id], noise)
-                        pending.append(pool.submit(writer.write_frame, im_id, depth, mask, intrinsics, R, t, o.obj_id))
-                        # Bound the frames in flight (memory) and surface write errors early.
-                        while len(pending) > 2 * max(1, io_threads):
-                            pending.popleft().result()
-                            bar.update(1)
-                        summary.rendered += 1
-                    while pending:
-                        pending.popleft().result()
-                        bar.update(1)
+                _render_scene(out_root, split, o, v, renderer, noise, noise_seed, intrinsics, depth_scale, pool,
+                              io_threads, summary, bar.update)
     finally:
         pool.shutdown(wait=True)
         if own:
             renderer.close()
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _views_of(o: ObjectSpec, views, n_views: int, view_seed: int, intrinsics: Intrinsics) -> Views:
+    return views if isinstance(views, Views) else (views(o) if callable(views) else default_views(o, n_views, view_seed, intrinsics))
+
+
+def _render_scene(out_root: Path, split: str, o: ObjectSpec, v: Views, renderer, noise, noise_seed: int,
+                  intrinsics: Intrinsics, depth_scale: float, pool: ThreadPoolExecutor, io_threads: int,
+                  summary: RenderSummary, tick: Callable[[int], object]) -> None:
+    """Renders object ``o``'s views ``v`` into its scene folder (frames already there skipped)."""
+    with bop.SceneWriter(out_root, split, o.obj_id, depth_scale) as writer:
+        pending: deque = deque()
+        for im_id in range(len(v)):
+            if writer.has_frame(im_id):
+                summary.skipped += 1
+                tick(1)
+                continue
+            R, t = v[im_id]
+            depth, mask = renderer.render(o.mesh, R, t)
+            if noise is not None:
+                depth = apply_kinect_noise(depth, intrinsics, [noise_seed, o.obj_id, im_id], noise)
+            pending.append(pool.submit(writer.write_frame, im_id, depth, mask, intrinsics, R, t, o.obj_id))
+            # Bound the frames in flight (memory) and surface write errors early.
+            while len(pending) > 2 * max(1, io_threads):
+                pending.popleft().result()
+                tick(1)
+            summary.rendered += 1
+        while pending:
+            pending.popleft().result()
+            tick(1)
+
+
+def render_instance(out_root: str | Path, obj: ObjectSpec, split: str = "train", n_views: int = PAPER_VIEWS,
+                    view_seed: int = 0, intrinsics: Intrinsics = KINECT_V1, noise: KinectNoise | None = None,
+                    noise_seed: int = 0, depth_scale: float = 1.0, io_threads: int = 2) -> RenderSummary:
+    """Renders one object's :func:`default_views` into ``<out_root>/<split>/<obj_id>/``, exactly
+    as :func:`render_dataset` does (frames already written are skipped), in this process's GL
+    context: one task of a cluster render (:func:`isa.cluster.render_dataset`, which writes the
+    settings and ``models/`` first)."""
+    from isa.render.renderer import DepthRenderer
+
+    summary = RenderSummary(scenes=[obj.obj_id])
+    v = default_views(obj, n_views, view_seed, intrinsics)
+    renderer = DepthRenderer(intrinsics)
+    pool = ThreadPoolExecutor(max(1, io_threads))
+    try:
+        _render_scene(Path(out_root), split, obj, v, renderer, noise, noise_seed, intrinsics, depth_scale, pool,
+                      io_threads, summary, lambda _: None)
+    finally:
+        pool.shutdown(wait=True)
+        renderer.close()
+    return summary
+
+
+def prepare_dataset(out_root: str | Path, objects: Sequence[ObjectSpec], split: str = "train",
+                    n_views: int = PAPER_VIEWS, view_seed: int = 0, intrinsics: Intrinsics = KINECT_V1,
+                    noise: KinectNoise | None = None, depth_scale: float = 1.0) -> None:
+    """What :func:`render_dataset` writes before any frame (settings check, ``models/``), for
+    renders whose instances run as separate tasks (:func:`render_instance`)."""
+    _check_objects(objects)
+    out_root = Path(out_root)
+    (out_root / split).mkdir(parents=True, exist_ok=True)
+    check_settings(out_root / split / "isa_render.json",
+                   _settings(intrinsics, depth_scale, noise, f"default-fit:{n_views}:{view_seed}"))
+    _write_models(out_root, objects)
+
+
+def _check_objects(objects: Sequence[ObjectSpec]) -> None:
+    if not objects:
+        raise DataError("render_dataset: no objects to render")
+    ids = [o.obj_id for o in objects]
+    if len(set(ids)) != len(ids):
+        raise DataError(f"render_dataset: duplicate obj_id in {ids}")
 
 
 def main(argv: list[str] | None = None) -> None:

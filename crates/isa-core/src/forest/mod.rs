@@ -19,12 +19,14 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::criterion::{build_targets, Criterion, RawTargets};
+use crate::criterion::{Criterion, RawTargets, Targets, Term};
 use crate::depth::{DepthStore, Part};
 use crate::error::{IsaError, Result};
 use crate::metadata::{ModelMetadata, TrainingSummary};
 use crate::params::{ForestParams, PredictParams, Valid};
 use crate::rng::mix;
+use crate::shards::ShardSet;
+use crate::targets::{build_targets_from, WideTargets};
 use crate::tree::{build_tree, TrainContext, Tree, Vote};
 
 /// Training data: images, parts and their targets (see DESIGN.md, data contract).
@@ -33,6 +35,52 @@ pub struct TrainingSet<'a> {
     pub store: &'a DepthStore,
     pub parts: &'a [Part],
     pub targets: RawTargets<'a>,
+}
+
+/// What the trees read: depth crops, parts, the compact targets, and where the wide targets
+/// (link angles, node offsets; read only while [`Forest::prepare`] builds the criterion's
+/// targets) come from.
+#[derive(Clone, Copy)]
+pub struct TrainInputs<'a> {
+    pub store: &'a DepthStore,
+    pub parts: &'a [Part],
+    /// `(n, 3)` SSC offsets.
+    pub offsets: &'a [f32],
+    /// `(n, 4)` quaternions.
+    pub rotations: &'a [f32],
+    pub wide: &'a dyn WideTargets,
+}
+
+/// What [`Forest::prepare`] builds once per training set.
+pub struct Prepared {
+    targets: Targets,
+    crit: Criterion,
+    /// The data's counts for the model's training summary.
+    pub counts: TrainingSummary,
+}
+
+impl ShardSet {
+    /// The set as trees read it.
+    pub fn inputs(&self) -> TrainInputs<'_> {
+        TrainInputs {
+            store: &self.store,
+            parts: &self.parts,
+            offsets: &self.offsets,
+            rotations: &self.rotations,
+            wide: self,
+        }
+    }
+
+    /// The data counts of a shard folder's manifest (as [`Prepared::counts`] would say).
+    pub fn counts(manifest: &crate::shards::Manifest) -> TrainingSummary {
+        TrainingSummary {
+            n_parts: manifest.n_parts(),
+            n_images: manifest.n_images(),
+            link_angle_dims: manifest.link_angles.unwrap_or(0),
+            node_offset_dims: manifest.node_offsets.unwrap_or(0),
+            ..Default::default()
+        }
+    }
 }
 
 /// One vote of one part through one tree.
@@ -96,19 +144,77 @@ impl Forest {
     pub fn fit_with_progress(
         params: &Valid<ForestParams>,
         data: &TrainingSet<'_>,
-        mut metadata: ModelMetadata,
+        metadata: ModelMetadata,
         n_threads: Option<usize>,
         on_tree: &(dyn Fn(usize) + Sync),
     ) -> Result<Forest> {
+        let n = data.parts.len();
+        if data.targets.n() != n || data.targets.offsets.len() != 3 * n {
+            return Err(IsaError::InvalidInput(format!(
+                "offsets: expected ({n}, 3) for {n} parts, got {} values",
+                data.targets.offsets.len()
+            )));
+        }
+        if n > 0 {
+            data.targets.validate()?;
+        }
+        let inputs = TrainInputs {
+            store: data.store,
+            parts: data.parts,
+            offsets: data.targets.offsets,
+            rotations: data.targets.rotations,
+            wide: &data.targets,
+        };
+        Self::fit_inputs(params, &inputs, metadata, n_threads, on_tree)
+    }
+
+    /// [`Forest::fit_with_progress`] on a shard folder opened with [`ShardSet::open`]: the same
+    /// forest, to the byte, as from the shards' arrays concatenated in memory.
+    pub fn fit_shards(
+        params: &Valid<ForestParams>,
+        shards: &ShardSet,
+        metadata: ModelMetadata,
+        n_threads: Option<usize>,
+        on_tree: &(dyn Fn(usize) + Sync),
+    ) -> Result<Forest> {
+        Self::fit_inputs(params, &shards.inputs(), metadata, n_threads, on_tree)
+    }
+
+    fn fit_inputs(
+        params: &Valid<ForestParams>,
+        data: &TrainInputs<'_>,
+        metadata: ModelMetadata,
+        n_threads: Option<usize>,
+        on_tree: &(dyn Fn(usize) + Sync),
+    ) -> Result<Forest> {
+        with_threads(n_threads, || -> Result<Forest> {
+            let prep = Self::prepare(params, data)?;
+            // Trees one after the other, each using every thread (level-wise, see `tree`): the
+            // working memory is that of one tree.
+            let trees = (0..params.n_trees)
+                .map(|t| {
+                    let tree = Self::fit_tree(params, data, &prep, t)?;
+                    on_tree(t + 1);
+                    Ok(tree)
+                })
+                .collect::<Result<Vec<Tree>>>()?;
+            Self::assemble(params, trees, metadata, &prep.counts)
+        })?
+    }
+
+    /// Checks the data and builds what every tree reads (the criterion's targets); done once
+    /// per training set, then [`Forest::fit_tree`] for each tree, on any machine.
+    pub fn prepare(params: &Valid<ForestParams>, data: &TrainInputs<'_>) -> Result<Prepared> {
         let params: &ForestParams = params;
         let n = data.parts.len();
         if n == 0 {
             return Err(IsaError::InvalidInput("parts: no training parts".into()));
         }
-        if data.targets.n() != n || data.targets.offsets.len() != 3 * n {
+        if data.offsets.len() != 3 * n || data.rotations.len() != 4 * n {
             return Err(IsaError::InvalidInput(format!(
-                "offsets: expected ({n}, 3) for {n} parts, got {} values",
-                data.targets.offsets.len()
+                "offsets / rotations: expected ({n}, 3) / ({n}, 4) for {n} parts, got {} / {} values",
+                data.offsets.len(),
+                data.rotations.len()
             )));
         }
         if n > u32::MAX as usize / 2 {
@@ -117,58 +223,104 @@ impl Forest {
             )));
         }
         data.store.validate_parts(data.parts)?;
-        with_threads(n_threads, || -> Result<Forest> {
-            let targets = build_targets(&data.targets, params.quality, params.reduce_dims)?;
-            let crit = Criterion::new(targets.layout.clone(), params.reg);
-            let ctx = TrainContext {
-                params,
-                store: data.store,
-                parts: data.parts,
-                offsets: data.targets.offsets,
-                rotations: data.targets.rotations,
-                targets: &targets,
-                crit: &crit,
-            };
-            let n_bag = ((n as f64 * params.bag_fraction).round() as usize).clamp(1, n);
-            // Trees one after the other, each using every thread (level-wise, see `tree`): the
-            // working memory is that of one tree.
-            let trees: Vec<Tree> = (0..params.n_trees)
-                .map(|t| {
-                    let bag: Vec<u32> = if n_bag == n {
-                        (0..n as u32).collect()
-                    } else {
-                        let mut rng =
-                            ChaCha8Rng::seed_from_u64(mix(&[params.seed, t as u64, 0xba66]));
-                        let mut v: Vec<u32> = sample(&mut rng, n, n_bag)
-                            .into_iter()
-                            .map(|i| i as u32)
-                            .collect();
-                        v.sort_unstable();
-                        v
-                    };
-                    let tree = build_tree(&ctx, t, bag);
-                    on_tree(t + 1);
-                    tree
-                })
-                .collect();
-            // The counts join whatever the trainer said about its data.
-            let extra = metadata.training.take().map(|t| t.extra).unwrap_or_default();
-            metadata.training = Some(TrainingSummary {
-                extra,
+        let targets = build_targets_from(
+            data.offsets,
+            data.rotations,
+            data.wide,
+            params.quality,
+            params.reduce_dims,
+        )?;
+        let crit = Criterion::new(targets.layout.clone(), params.reg);
+        Ok(Prepared {
+            targets,
+            crit,
+            counts: TrainingSummary {
                 n_parts: n,
                 n_images: data.store.len(),
-                link_angle_dims: data.targets.link_angles.map_or(0, |a| a.1),
-                node_offset_dims: data.targets.node_offsets.map_or(0, |a| a.1),
-            });
-            Ok(Forest {
-                params: params.clone(),
-                trees,
-                metadata,
-                predict_defaults: Valid::default(),
-                crate_version: crate::VERSION.to_string(),
-                flat: Default::default(),
-            })
-        })?
+                link_angle_dims: data.wide.width(Term::Links).unwrap_or(0),
+                node_offset_dims: data.wide.width(Term::Nodes).unwrap_or(0),
+                ..Default::default()
+            },
+        })
+    }
+
+    /// Tree `t` of the forest (its bag and node seeds derive from `params.seed` and `t` alone,
+    /// so trees fitted apart assemble into the forest [`Forest::fit`] makes).
+    pub fn fit_tree(
+        params: &Valid<ForestParams>,
+        data: &TrainInputs<'_>,
+        prep: &Prepared,
+        t: usize,
+    ) -> Result<Tree> {
+        let params: &ForestParams = params;
+        if t >= params.n_trees {
+            return Err(IsaError::InvalidInput(format!(
+                "tree: index {t} out of range (the forest has {} trees)",
+                params.n_trees
+            )));
+        }
+        if prep.targets.n != data.parts.len() {
+            return Err(IsaError::InvalidInput(format!(
+                "tree: prepared for {} parts, given {}",
+                prep.targets.n,
+                data.parts.len()
+            )));
+        }
+        let n = data.parts.len();
+        let ctx = TrainContext {
+            params,
+            store: data.store,
+            parts: data.parts,
+            offsets: data.offsets,
+            rotations: data.rotations,
+            targets: &prep.targets,
+            crit: &prep.crit,
+        };
+        let n_bag = ((n as f64 * params.bag_fraction).round() as usize).clamp(1, n);
+        let bag: Vec<u32> = if n_bag == n {
+            (0..n as u32).collect()
+        } else {
+            let mut rng = ChaCha8Rng::seed_from_u64(mix(&[params.seed, t as u64, 0xba66]));
+            let mut v: Vec<u32> = sample(&mut rng, n, n_bag)
+                .into_iter()
+                .map(|i| i as u32)
+                .collect();
+            v.sort_unstable();
+            v
+        };
+        Ok(build_tree(&ctx, t, bag))
+    }
+
+    /// The forest of `trees` (tree `t` at index `t`, from [`Forest::fit_tree`]) with the data's
+    /// `counts` (from [`Prepared::counts`], or [`ShardSet`]'s manifest) joining whatever
+    /// `metadata.training` says.
+    pub fn assemble(
+        params: &Valid<ForestParams>,
+        trees: Vec<Tree>,
+        mut metadata: ModelMetadata,
+        counts: &TrainingSummary,
+    ) -> Result<Forest> {
+        if trees.len() != params.n_trees {
+            return Err(IsaError::InvalidInput(format!(
+                "trees: {} given, the parameters say {}",
+                trees.len(),
+                params.n_trees
+            )));
+        }
+        // The counts join whatever the trainer said about its data.
+        let extra = metadata.training.take().map(|t| t.extra).unwrap_or_default();
+        metadata.training = Some(TrainingSummary {
+            extra,
+            ..counts.clone()
+        });
+        Ok(Forest {
+            params: (**params).clone(),
+            trees,
+            metadata,
+            predict_defaults: Valid::default(),
+            crate_version: crate::VERSION.to_string(),
+            flat: Default::default(),
+        })
     }
 
     pub fn n_trees(&self) -> usize {
@@ -351,6 +503,60 @@ pub(crate) mod tests {
         assert_eq!(*seen.lock().unwrap(), vec![1, 2, 3]);
         let without = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), Some(2)).unwrap();
         assert_eq!(with.to_bytes(), without.to_bytes());
+    }
+
+    /// The toy set as a `.isat` training set with (synthetic) privileged targets.
+    fn toy_trainset(n_images: usize) -> crate::trainset_io::TrainSetData {
+        let (store, parts, offsets, rotations) = toy(n_images);
+        let p = parts.len();
+        let la: Vec<f32> = (0..2 * p).map(|k| ((k * 7919) % 628) as f32 * 0.01 - std::f32::consts::PI).collect();
+        let no: Vec<f32> = (0..6 * p).map(|k| offsets[(k / 6) * 3 + k % 3] * 100.0 + (k % 6) as f32).collect();
+        crate::trainset_io::TrainSetData {
+            store,
+            parts,
+            offsets,
+            rotations,
+            link_angles: Some((la, 2)),
+            node_offsets: Some((no, 6)),
+            metadata: "{}".into(),
+        }
+    }
+
+    #[test]
+    fn trees_fitted_apart_and_shards_give_the_same_bytes() {
+        let ts = toy_trainset(3);
+        let p = ForestParams {
+            quality: crate::params::Quality::Q1Q2Q3,
+            reduce_dims: 2,
+            bag_fraction: 0.8,
+            max_score_samples: 300,
+            ..toy_params()
+        }
+        .check()
+        .unwrap();
+        let whole = Forest::fit(&p, &ts.training_set(), Default::default(), Some(2)).unwrap().to_bytes();
+        // Shards of 1 and 2 images, opened from disk.
+        let dir = crate::shards::tests::write_shards("fit", &crate::shards::tests::split(&ts, &[1]));
+        let set = ShardSet::open(&dir).unwrap();
+        let sharded = Forest::fit_shards(&p, &set, Default::default(), Some(1), &|_| {}).unwrap();
+        assert_eq!(sharded.to_bytes(), whole);
+        // Trees one at a time, in reverse order, through their bytes, then assembled.
+        let prep = Forest::prepare(&p, &set.inputs()).unwrap();
+        let mut trees: Vec<Tree> = (0..p.n_trees)
+            .rev()
+            .map(|t| {
+                let b = crate::model_io::encode_tree(&Forest::fit_tree(&p, &set.inputs(), &prep, t).unwrap());
+                crate::model_io::decode_tree(&b, "tree").unwrap()
+            })
+            .collect();
+        trees.reverse();
+        let counts = ShardSet::counts(&set.manifest);
+        assert_eq!(counts, prep.counts);
+        assert_eq!(Forest::assemble(&p, trees, Default::default(), &counts).unwrap().to_bytes(), whole);
+        assert!(Forest::fit_tree(&p, &set.inputs(), &prep, p.n_trees).is_err());
+        let b = crate::model_io::encode_tree(&sharded.trees[0]);
+        assert!(crate::model_io::decode_tree(&b[..b.len() - 1], "tree 0").unwrap_err().to_string().contains("tree 0"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

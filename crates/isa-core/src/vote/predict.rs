@@ -363,6 +363,7 @@ pub fn predict(
 mod tests {
     use super::super::{quat_angle, synth};
     use super::*;
+    use crate::features::Feature;
     use crate::criterion::RawTargets;
     use crate::forest::TrainingSet;
     use crate::params::{ForestParams, Quality};
