@@ -389,7 +389,11 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
 
 /// Writes a forest atomically (temporary file in the same folder, fsync, rename).
 pub fn save(forest: &Forest, path: &Path) -> Result<()> {
-    let bytes = encode(forest);
+    write_atomic(path, &encode(forest))
+}
+
+/// Writes `bytes` to `path` atomically (temporary file in the same folder, fsync, rename).
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let io = |e: std::io::Error| IsaError::Io {
         path: path.display().to_string(),
         source: e,
@@ -408,7 +412,7 @@ pub fn save(forest: &Forest, path: &Path) -> Result<()> {
     ));
     let res = (|| {
         let mut f = fs::File::create(&tmp)?;
-        f.write_all(&bytes)?;
+        f.write_all(bytes)?;
         f.sync_all()?;
         drop(f);
         fs::rename(&tmp, path)
