@@ -2,7 +2,7 @@
 //! arrays in and out (`arrays`), keyword arguments to the core's parameter overlay (`params`),
 //! core errors to their Python exception classes (`errors`). One file per domain: the forest
 //! (`forest`, with `predict` / `image_votes` methods), inference (`predict`, `hypothesis`),
-//! features (`features`), training-set files (`trainset`), and test hooks in the private
+//! features (`features`), scene detection (`scene`), training-set files (`trainset`), and test hooks in the private
 //! submodule `isa._core._testing` (`testing`).
 
 use pyo3::prelude::*;
@@ -14,6 +14,7 @@ pub mod forest;
 pub mod hypothesis;
 pub mod params;
 pub mod predict;
+pub mod scene;
 pub mod testing;
 pub mod trainset;
 
@@ -29,6 +30,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(features::sample_parts, m)?)?;
     m.add_function(wrap_pyfunction!(features::depth_features, m)?)?;
     predict::register(m)?;
+    scene::register(m)?;
     trainset::register(m)?;
     m.add_submodule(&testing::submodule(m.py())?)?;
     Ok(())

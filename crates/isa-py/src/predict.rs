@@ -23,7 +23,7 @@ use crate::params::{kwargs_json, predict_params, KWARGS};
 
 /// Intrinsics from an object with `fx, fy, cx, cy` attributes (e.g. `isa.camera.Intrinsics`),
 /// a 3x3 camera matrix, or a sequence `(fx, fy, cx, cy)`.
-fn intrinsics(k: &Bound<'_, PyAny>) -> PyResult<Intrinsics> {
+pub(crate) fn intrinsics(k: &Bound<'_, PyAny>) -> PyResult<Intrinsics> {
     let i = if k.hasattr("fx")? {
         Intrinsics {
             fx: k.getattr("fx")?.extract()?,
@@ -95,7 +95,7 @@ fn depth_mm(depth: &Bound<'_, PyAny>) -> PyResult<(Vec<u16>, usize, usize)> {
 }
 
 /// The `_core.Forest` behind `obj`: itself, or its `.core` (an `isa.forest.Forest`).
-fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyForest>> {
+pub(crate) fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyForest>> {
     if let Ok(f) = obj.cast::<PyForest>() {
         return Ok(f.clone());
     }
