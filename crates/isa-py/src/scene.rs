@@ -26,18 +26,30 @@ fn dict_json(d: Option<&Bound<'_, PyAny>>) -> PyResult<Value> {
     match given(d) {
         None => Ok(Value::Object(Default::default())),
         Some(d) => {
-            let text: String = d.py().import("json")?.call_method1("dumps", (d,))?.extract()?;
+            let text: String = d
+                .py()
+                .import("json")?
+                .call_method1("dumps", (d,))?
+                .extract()?;
             serde_json::from_str(&text).map_err(|e| input_err(format!("params: {e}")))
         }
     }
 }
 
-fn overlay<T: serde::Serialize + serde::de::DeserializeOwned + Default>(d: Option<&Bound<'_, PyAny>>, what: &str) -> PyResult<T> {
+fn overlay<T: serde::Serialize + serde::de::DeserializeOwned + Default>(
+    d: Option<&Bound<'_, PyAny>>,
+    what: &str,
+) -> PyResult<T> {
     overlay_json(&T::default(), &dict_json(d)?, what).map_err(to_py)
 }
 
 fn mat3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Matrix3<f64>> {
-    let a: [[f64; 3]; 3] = obj.extract().map_err(|_| input_err(format!("{name}: expected a 3x3 matrix, got {}", describe(obj))))?;
+    let a: [[f64; 3]; 3] = obj.extract().map_err(|_| {
+        input_err(format!(
+            "{name}: expected a 3x3 matrix, got {}",
+            describe(obj)
+        ))
+    })?;
     let m = scene::mat(&a);
     if !m.iter().all(|x| x.is_finite()) {
         return Err(input_err(format!("{name}: not finite")));
@@ -46,12 +58,17 @@ fn mat3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Matrix3<f64>> {
 }
 
 fn vec3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vector3<f64>> {
-    let a: [f64; 3] = obj.extract().map_err(|_| input_err(format!("{name}: expected 3 numbers, got {}", describe(obj))))?;
+    let a: [f64; 3] = obj
+        .extract()
+        .map_err(|_| input_err(format!("{name}: expected 3 numbers, got {}", describe(obj))))?;
     Ok(Vector3::from(a))
 }
 
 /// The (H, W) float32 metre depth and its camera.
-fn depth_frame<'py>(depth: &Bound<'py, PyAny>, k: &Bound<'py, PyAny>) -> PyResult<(numpy::PyReadonlyArrayDyn<'py, f32>, Camera)> {
+fn depth_frame<'py>(
+    depth: &Bound<'py, PyAny>,
+    k: &Bound<'py, PyAny>,
+) -> PyResult<(numpy::PyReadonlyArrayDyn<'py, f32>, Camera)> {
     let a = array::<f32>(depth, "depth", "float32", &[None, None])?;
     let (h, w) = (a.shape()[0], a.shape()[1]);
     Ok((a, Camera::new(intrinsics(k)?, w, h).map_err(to_py)?))
@@ -59,7 +76,10 @@ fn depth_frame<'py>(depth: &Bound<'py, PyAny>, k: &Bound<'py, PyAny>) -> PyResul
 
 fn points_f64(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Vector3<f64>>> {
     let a = array::<f64>(obj, name, "float64", &[None, Some(3)])?;
-    Ok(as_slice(&a, name)?.chunks_exact(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect())
+    Ok(as_slice(&a, name)?
+        .chunks_exact(3)
+        .map(|c| Vector3::new(c[0], c[1], c[2]))
+        .collect())
 }
 
 /// A category's shape library (see `isa_core::scene::shapes`): surface samples (S, N, 3) and
@@ -88,7 +108,11 @@ impl PyShapeLibrary {
         let nr = array::<f32>(normals, "normals", "float32", &[Some(s), Some(n), Some(3)])?;
         let sp = array::<f64>(spacing, "spacing", "float64", &[Some(s)])?;
         let b = array::<f64>(bounds, "bounds", "float64", &[Some(s), Some(2), Some(3)])?;
-        let tri = |a: &[f32]| a.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+        let tri = |a: &[f32]| {
+            a.chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect::<Vec<_>>()
+        };
         let lib = ShapeLibrary::new(
             category,
             names,
@@ -97,7 +121,10 @@ impl PyShapeLibrary {
             tri(as_slice(&p, "points")?),
             tri(as_slice(&nr, "normals")?),
             as_slice(&sp, "spacing")?.to_vec(),
-            as_slice(&b, "bounds")?.chunks_exact(6).map(|c| [[c[0], c[1], c[2]], [c[3], c[4], c[5]]]).collect(),
+            as_slice(&b, "bounds")?
+                .chunks_exact(6)
+                .map(|c| [[c[0], c[1], c[2]], [c[3], c[4], c[5]]])
+                .collect(),
         )
         .map_err(to_py)?;
         Ok(PyShapeLibrary { lib })
@@ -106,7 +133,9 @@ impl PyShapeLibrary {
     /// Reads an `.isl` file.
     #[staticmethod]
     fn load(path: std::path::PathBuf) -> PyResult<Self> {
-        Ok(PyShapeLibrary { lib: ShapeLibrary::load(&path).map_err(to_py)? })
+        Ok(PyShapeLibrary {
+            lib: ShapeLibrary::load(&path).map_err(to_py)?,
+        })
     }
 
     /// Writes an `.isl` file atomically.
@@ -143,7 +172,14 @@ impl PyShapeLibrary {
     }
     #[getter]
     fn bounds<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f64>>> {
-        let flat: Vec<f64> = self.lib.bounds.iter().flatten().flatten().copied().collect();
+        let flat: Vec<f64> = self
+            .lib
+            .bounds
+            .iter()
+            .flatten()
+            .flatten()
+            .copied()
+            .collect();
         Ok(PyArray1::from_vec(py, flat).reshape([self.lib.len(), 2, 3])?)
     }
     fn __len__(&self) -> usize {
@@ -151,35 +187,48 @@ impl PyShapeLibrary {
     }
 }
 
-fn planes_dict<'py>(py: Python<'py>, pl: &Planes, h: usize, w: usize) -> PyResult<Bound<'py, PyDict>> {
+fn planes_dict<'py>(
+    py: Python<'py>,
+    pl: &Planes,
+    h: usize,
+    w: usize,
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let list = PyList::empty(py);
     for p in &pl.planes {
         let e = PyDict::new(py);
-        e.set_item("kind", match p.kind {
-            scene::planes::PlaneKind::Floor => "floor",
-            scene::planes::PlaneKind::Wall => "wall",
-        })?;
+        e.set_item(
+            "kind",
+            match p.kind {
+                scene::planes::PlaneKind::Floor => "floor",
+                scene::planes::PlaneKind::Wall => "wall",
+            },
+        )?;
         e.set_item("normal", vector(py, p.normal.to_vec()))?;
         e.set_item("offset", p.offset)?;
         e.set_item("n_inliers", p.inliers)?;
         list.append(e)?;
     }
     d.set_item("planes", list)?;
-    d.set_item("removed", PyArray1::from_vec(py, pl.removed.clone()).reshape([h, w])?)?;
+    d.set_item(
+        "removed",
+        PyArray1::from_vec(py, pl.removed.clone()).reshape([h, w])?,
+    )?;
     Ok(d)
 }
 
 /// The floor and walls of a frame: `{"planes": [{"kind", "normal", "offset", "n_inliers"}],
 /// "removed": (H, W) bool}` (floor first; removed: on a plane or under the floor).
 #[pyfunction]
-#[pyo3(signature = (depth, K, R_gravity, params=None))]
+#[pyo3(signature = (depth, K, R_gravity, params=None, floor=true, walls=true))]
 #[allow(non_snake_case)]
 pub fn find_planes<'py>(
     depth: &Bound<'py, PyAny>,
     K: &Bound<'py, PyAny>,
     R_gravity: &Bound<'py, PyAny>,
     params: Option<&Bound<'py, PyAny>>,
+    floor: bool,
+    walls: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = depth.py();
     let p: PlaneParams = overlay(params, "plane parameters")?;
@@ -188,7 +237,7 @@ pub fn find_planes<'py>(
     let (a, cam) = depth_frame(depth, K)?;
     let d = as_slice(&a, "depth")?;
     let out = py
-        .detach(|| Frame::new(d, cam).map(|f| scene::planes::find_planes(&f, &rg, &p)))
+        .detach(|| Frame::new(d, cam).map(|f| scene::planes::find_planes(&f, &rg, &p, floor, walls)))
         .map_err(to_py)?;
     planes_dict(py, &out, cam.height, cam.width)
 }
@@ -216,16 +265,27 @@ pub fn verify_pose<'py>(
     let (a, cam) = depth_frame(depth, K)?;
     let d = as_slice(&a, "depth")?;
     let mask = match given(planes) {
-        Some(m) => Some(array::<bool>(m, "planes", "bool", &[Some(cam.height), Some(cam.width)])?),
+        Some(m) => Some(array::<bool>(
+            m,
+            "planes",
+            "bool",
+            &[Some(cam.height), Some(cam.width)],
+        )?),
         None => None,
     };
     let mask_s = match &mask {
         Some(m) => Some(as_slice(m, "planes")?),
         None => None,
     };
-    let pts: Vec<[f32; 3]> = points_f64(points, "points")?.iter().map(|q| [q.x as f32, q.y as f32, q.z as f32]).collect();
+    let pts: Vec<[f32; 3]> = points_f64(points, "points")?
+        .iter()
+        .map(|q| [q.x as f32, q.y as f32, q.z as f32])
+        .collect();
     let (r, t) = (mat3(R, "R")?, vec3(t, "t")?);
-    let ev = scene::verify::Evidence { frame: Frame::new(d, cam).map_err(to_py)?, planes: mask_s };
+    let ev = scene::verify::Evidence {
+        frame: Frame::new(d, cam).map_err(to_py)?,
+        planes: mask_s,
+    };
     let v = scene::verify::verify_pose(&ev, &r, &t, &pts, [1.0; 3], spacing, &p, n_points);
     let out = PyDict::new(py);
     out.set_item("score", v.score)?;
@@ -269,9 +329,13 @@ pub fn refine_pose<'py>(
     if nrm.as_ref().is_some_and(|n| n.len() != pts.len()) {
         return Err(input_err("normals: one per shape point"));
     }
-    let b: [[f64; 3]; 2] = bounds.extract().map_err(|_| input_err(format!("bounds: expected (2, 3), got {}", describe(bounds))))?;
+    let b: [[f64; 3]; 2] = bounds
+        .extract()
+        .map_err(|_| input_err(format!("bounds: expected (2, 3), got {}", describe(bounds))))?;
     let (r, t, rg) = (mat3(R, "R")?, vec3(t, "t")?, mat3(R_gravity, "R_gravity")?);
-    let out = py.detach(|| scene::refine::refine_pose(&obs, &cam, &r, &t, &pts, nrm.as_deref(), b, &rg, &p));
+    let out = py.detach(|| {
+        scene::refine::refine_pose(&obs, &cam, &r, &t, &pts, nrm.as_deref(), b, &rg, &p)
+    });
     let d = PyDict::new(py);
     d.set_item("R", rows(py, scene::rows(&out.r).into_iter()))?;
     d.set_item("t", vector(py, vec![out.t.x, out.t.y, out.t.z]))?;
@@ -291,7 +355,12 @@ pub fn nms_across(boxes: &Bound<'_, PyAny>, iou: f64, overlap: f64) -> PyResult<
     let a = array::<f64>(boxes, "boxes", "float64", &[None, Some(8)])?;
     let b: Vec<scene::nms::UprightBox> = as_slice(&a, "boxes")?
         .chunks_exact(8)
-        .map(|c| scene::nms::UprightBox { centre: [c[0], c[1], c[2]], size: [c[3], c[4], c[5]], yaw: c[6], score: c[7] })
+        .map(|c| scene::nms::UprightBox {
+            centre: [c[0], c[1], c[2]],
+            size: [c[3], c[4], c[5]],
+            yaw: c[6],
+            score: c[7],
+        })
         .collect();
     Ok(scene::nms::nms_across(&b, iou, overlap))
 }
@@ -315,7 +384,8 @@ pub fn detect<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = depth.py();
     let mut p = DetectParams::default();
-    p.overlay(&dict_json(params)?, "detect parameters").map_err(to_py)?;
+    p.overlay(&dict_json(params)?, "detect parameters")
+        .map_err(to_py)?;
     let p = p.check().map_err(to_py)?;
     let (a, cam) = depth_frame(depth, K)?;
     let d = as_slice(&a, "depth")?;
@@ -325,9 +395,18 @@ pub fn detect<'py>(
     let mut libs = Vec::new();
     let mut meta = Vec::new();
     for (i, m) in models.iter().enumerate() {
-        let m = m.cast::<PyDict>().map_err(|_| input_err(format!("models[{i}]: expected a dict, got {}", describe(&m))))?.clone();
+        let m = m
+            .cast::<PyDict>()
+            .map_err(|_| {
+                input_err(format!(
+                    "models[{i}]: expected a dict, got {}",
+                    describe(&m)
+                ))
+            })?
+            .clone();
         let get = |k: &str| -> PyResult<Bound<'py, PyAny>> {
-            m.get_item(k)?.ok_or_else(|| input_err(format!("models[{i}]: no {k:?}")))
+            m.get_item(k)?
+                .ok_or_else(|| input_err(format!("models[{i}]: no {k:?}")))
         };
         let category: String = get("category")?.extract()?;
         forests.push(core_forest(&get("forest")?)?);
@@ -335,54 +414,94 @@ pub fn detect<'py>(
         let ssc: [f64; 3] = get("ssc_offset")?.extract()?;
         let shapes = m.get_item("shapes")?.filter(|s| !s.is_none());
         libs.push(match shapes {
-            Some(s) => Some(s.cast::<PyShapeLibrary>().map_err(|_| input_err(format!("models[{i}].shapes: expected an isa._core.ShapeLibrary, got {}", describe(&s))))?.clone()),
+            Some(s) => Some(
+                s.cast::<PyShapeLibrary>()
+                    .map_err(|_| {
+                        input_err(format!(
+                            "models[{i}].shapes: expected an isa._core.ShapeLibrary, got {}",
+                            describe(&s)
+                        ))
+                    })?
+                    .clone(),
+            ),
             None => None,
         });
+        let range = match m.get_item("size_range")?.filter(|r| !r.is_none()) {
+            Some(r) => {
+                let (height, length): ([f64; 2], [f64; 2]) = r.extract().map_err(|_| {
+                    input_err(format!("models[{i}].size_range: expected ((h0, h1), (l0, l1)), got {}", describe(&r)))
+                })?;
+                Some(SizeRange { height, length })
+            }
+            None => None,
+        };
         let hyps = match m.get_item("hypotheses")?.filter(|h| !h.is_none()) {
             Some(h) => {
                 let mut v = Vec::new();
                 for x in h.try_iter()? {
                     let x = x?;
-                    let hh = x.cast::<PyHypothesis>().map_err(|_| input_err(format!("models[{i}].hypotheses: expected isa._core.Hypothesis items, got {}", describe(&x))))?;
+                    let hh = x.cast::<PyHypothesis>().map_err(|_| {
+                        input_err(format!(
+                            "models[{i}].hypotheses: expected isa._core.Hypothesis items, got {}",
+                            describe(&x)
+                        ))
+                    })?;
                     v.push(hh.get().inner().clone());
                 }
                 Some(v)
             }
             None => None,
         };
-        meta.push((category, size, ssc, hyps));
+        meta.push((category, size, ssc, range, hyps));
     }
     let frefs: Vec<_> = forests.iter().map(|f| f.borrow()).collect();
     let mut core_models = Vec::new();
-    for (i, (category, size, ssc, hyps)) in meta.iter().enumerate() {
+    for (i, (category, size, ssc, range, hyps)) in meta.iter().enumerate() {
         core_models.push(scene::SceneModel {
             category,
             forest: frefs[i].core()?,
             size: *size,
             ssc_offset: *ssc,
             shapes: libs[i].as_ref().map(|l| &l.get().lib),
+            size_range: *range,
             hypotheses: hyps.as_deref(),
         });
     }
     let given_planes = match given(planes) {
         Some(pl) => {
-            let pd = pl.cast::<PyDict>().map_err(|_| input_err("planes: expected find_planes' dict"))?;
-            let removed = pd.get_item("removed")?.ok_or_else(|| input_err("planes: no \"removed\""))?;
-            let m = array::<bool>(&removed, "planes[\"removed\"]", "bool", &[Some(cam.height), Some(cam.width)])?;
+            let pd = pl
+                .cast::<PyDict>()
+                .map_err(|_| input_err("planes: expected find_planes' dict"))?;
+            let removed = pd
+                .get_item("removed")?
+                .ok_or_else(|| input_err("planes: no \"removed\""))?;
+            let m = array::<bool>(
+                &removed,
+                "planes[\"removed\"]",
+                "bool",
+                &[Some(cam.height), Some(cam.width)],
+            )?;
             let mut list = Vec::new();
             if let Some(ps) = pd.get_item("planes")? {
                 for e in ps.try_iter()? {
                     let e = e?;
                     let kind: String = e.get_item("kind")?.extract()?;
                     list.push(scene::planes::Plane {
-                        kind: if kind == "floor" { scene::planes::PlaneKind::Floor } else { scene::planes::PlaneKind::Wall },
+                        kind: if kind == "floor" {
+                            scene::planes::PlaneKind::Floor
+                        } else {
+                            scene::planes::PlaneKind::Wall
+                        },
                         normal: e.get_item("normal")?.extract()?,
                         offset: e.get_item("offset")?.extract()?,
                         inliers: e.get_item("n_inliers")?.extract()?,
                     });
                 }
             }
-            Some(Planes { planes: list, removed: as_slice(&m, "planes")?.to_vec() })
+            Some(Planes {
+                planes: list,
+                removed: as_slice(&m, "planes")?.to_vec(),
+            })
         }
         None => None,
     };
@@ -427,7 +546,10 @@ pub fn detect<'py>(
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<PyShapeLibrary>()?;
-    m.add("SHAPES_FORMAT_VERSION", scene::shapes::SHAPES_FORMAT_VERSION)?;
+    m.add(
+        "SHAPES_FORMAT_VERSION",
+        scene::shapes::SHAPES_FORMAT_VERSION,
+    )?;
     let d = serde_json::to_value(DetectParams::default()).expect("parameters serialise");
     m.add("DETECT_DEFAULTS", json_to_py(py, &d)?)?;
     m.add_function(wrap_pyfunction!(detect, m)?)?;

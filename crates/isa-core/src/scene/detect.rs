@@ -14,7 +14,7 @@ use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource}
 use super::nms::{nms_across, UprightBox};
 use super::planes::{find_planes, Planes};
 use super::refine::{refine_pose, upright_points};
-use super::shapes::ShapeLibrary;
+use super::shapes::{ShapeLibrary, SizeRange};
 use super::verify::{verify_pose, Evidence, Verification};
 use super::{rot_z, rows, yaw_of, Camera, Frame};
 use crate::error::{IsaError, Result};
@@ -28,8 +28,9 @@ const SIZE_MARGIN: f64 = 0.15;
 const SIZE_ROUNDS: usize = 2;
 
 /// One category model: its forest, its box (full extents and the SSC's offset from the box
-/// centre, object frame), its shape library (None: the forest's score and box are used), and
-/// optionally hypotheses voted elsewhere (e.g. with leaf weights) instead of the forest's own.
+/// centre, object frame), its shape library (None: the forest's score and box are used), the
+/// category's real-world sizes the size fit keeps to (None: any), and optionally hypotheses
+/// voted elsewhere (e.g. with leaf weights) instead of the forest's own.
 #[derive(Clone, Copy, Debug)]
 pub struct SceneModel<'a> {
     pub category: &'a str,
@@ -37,11 +38,13 @@ pub struct SceneModel<'a> {
     pub size: [f64; 3],
     pub ssc_offset: [f64; 3],
     pub shapes: Option<&'a ShapeLibrary>,
+    pub size_range: Option<SizeRange>,
     pub hypotheses: Option<&'a [Hypothesis]>,
 }
 
 impl<'a> SceneModel<'a> {
-    /// A model whose box comes from the forest's metadata; the error names `source`.
+    /// A model whose box comes from the forest's metadata and whose size range from its shape
+    /// library; the error names `source`.
     pub fn from_forest(
         category: &'a str,
         forest: &'a Forest,
@@ -59,6 +62,7 @@ impl<'a> SceneModel<'a> {
             size: b.size,
             ssc_offset: b.ssc_offset,
             shapes,
+            size_range: shapes.and_then(|l| l.size_range),
             hypotheses: None,
         })
     }
@@ -271,7 +275,14 @@ fn score_shapes(
 
 /// The object's size: a coordinate search over per-axis scale factors of the candidate's best
 /// shapes, within the category's real-world range; the final score from every sample.
-fn fit_size(c: &mut Cand, lib: &ShapeLibrary, sc: &Scene<'_>, vp: &VerifyParams, p: &DetectParams) {
+fn fit_size(
+    c: &mut Cand,
+    lib: &ShapeLibrary,
+    range: Option<SizeRange>,
+    sc: &Scene<'_>,
+    vp: &VerifyParams,
+    p: &DetectParams,
+) {
     let mut best: Option<(f64, usize, [f64; 3])> = None;
     for &s in c.shape_order.iter().take(p.size_shapes) {
         let (v, _) = sc.verify_scaled(&c.r, &c.t, lib, s, [1.0; 3], vp, p.quick_points);
@@ -283,10 +294,7 @@ fn fit_size(c: &mut Cand, lib: &ShapeLibrary, sc: &Scene<'_>, vp: &VerifyParams,
                     trial[axis] *= f;
                     let size = lib.size(s);
                     let scaled = [size[0] * trial[0], size[1] * trial[1], size[2] * trial[2]];
-                    if lib
-                        .size_range
-                        .is_some_and(|r| !r.admits(scaled, SIZE_MARGIN))
-                    {
+                    if range.is_some_and(|r| !r.admits(scaled, SIZE_MARGIN)) {
                         continue;
                     }
                     let (v, _) = sc.verify_scaled(&c.r, &c.t, lib, s, trial, vp, p.quick_points);
@@ -383,7 +391,7 @@ pub fn detect(
             }
             Some(pl)
         }
-        None if p.remove_planes => Some(find_planes(&frame, &rg, &p.planes)),
+        None if p.remove_planes => Some(find_planes(&frame, &rg, &p.planes, true, true)),
         None => None,
     };
     let floor = planes.as_ref().and_then(|pl| pl.floor_height());
@@ -440,7 +448,7 @@ pub fn detect(
                         .par_iter()
                         .map(|&i| {
                             let mut c = cands[i].clone();
-                            fit_size(&mut c, lib, &sc, vp, p);
+                            fit_size(&mut c, lib, m.size_range, &sc, vp, p);
                             (i, c)
                         })
                         .collect();

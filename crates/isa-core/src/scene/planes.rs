@@ -344,11 +344,14 @@ fn find_wall(
     None
 }
 
-/// The floor (and everything under it) and walls of `frame` seen through `r_gravity`.
+/// The floor (and everything under it) and walls of `frame` seen through `r_gravity`; `floor`
+/// / `walls` false skip that kind.
 pub fn find_planes(
     frame: &Frame<'_>,
     r_gravity: &nalgebra::Matrix3<f64>,
     p: &PlaneParams,
+    floor: bool,
+    walls: bool,
 ) -> Planes {
     let (cam, pix) = frame.points();
     let up: Vec<Vector3<f64>> = cam.iter().map(|q| r_gravity * q).collect();
@@ -359,7 +362,7 @@ pub fn find_planes(
     let mut labels = vec![-1i64; up.len()];
     let mut planes = Vec::new();
     let z: Vec<f64> = up.iter().map(|q| q.z).collect();
-    if let Some(h) = find_floor(&z, &tol, p, &mut rng) {
+    if let Some(h) = find_floor(&z, &tol, p, &mut rng).filter(|_| floor) {
         let mut n_on = 0;
         for i in 0..up.len() {
             let dz = z[i] - h;
@@ -377,7 +380,7 @@ pub fn find_planes(
             inliers: n_on,
         });
     }
-    for _ in 0..p.max_walls {
+    for _ in 0..if walls { p.max_walls } else { 0 } {
         let free: Vec<usize> = (0..up.len()).filter(|&i| labels[i] == -1).collect();
         let fp: Vec<Vector3<f64>> = free.iter().map(|&i| up[i]).collect();
         let ft: Vec<f64> = free.iter().map(|&i| tol[i]).collect();
@@ -446,7 +449,7 @@ mod tests {
             }
         }
         let f = Frame::new(&depth, cam).unwrap();
-        let out = find_planes(&f, &rg, &PlaneParams::default());
+        let out = find_planes(&f, &rg, &PlaneParams::default(), true, true);
         assert_eq!(out.planes.len(), 2, "{:?}", out.planes);
         assert!(
             (out.floor_height().unwrap() + 1.4).abs() < 1e-3,
