@@ -1,15 +1,16 @@
-"""Whole-frame detection time: every category model on one 640x480 room frame, end to end.
+"""Whole-frame detection time: every category model on one 640x480 room frame, end to end, the
+core's path (``isa.detection.detect`` -> ``isa._core.detect``) against the numpy path it
+replaced (tests/detect_reference, the baseline), measured in the same run.
 
     python benches/bench_detect.py --model chair=chair.isa --model bed=bed.isa ... [--shapes DIR]
         [--scenes ROOT:SPLIT] [--frames 5] [--repeats 3]
 
-Prints median wall times per step of ``isa.detection.detect`` (gravity, planes, votes of all
-categories, verification, refinement, total) for: the one-class baseline of the same run
-(``isa.detection.detect_frame``: planes once, each forest, boxes, per-category NMS), the new
-pipeline without verification, with verification, and with verification + refinement. Frames
-come from a scene benchmark folder (``isa.scenes``); without ``--scenes`` a procedural room is
-made first. ``--shapes DIR`` holds ``<category>.shapes.npz`` (:mod:`isa.detection.shapes`);
-without it the shapes come from ``<model>.shapes.npz`` beside each model.
+Prints median wall times (ms) per stage (gravity, planes, votes of all categories,
+verification with the size fit and NMS, refinement, total) for three pipelines (no
+verification; verification and size; verification, size and refinement: the default) on each
+path, and the speed-up. Frames come from a scene benchmark folder (``isa.scenes``); without
+``--scenes`` a procedural room is made first. ``--shapes DIR`` holds ``<category>.shapes.npz``
+or ``.isl`` (:mod:`isa.detection.shapes`); without it the shapes come from beside each model.
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the numpy reference
 
 
 def _frames(spec: str | None, n: int):
@@ -37,60 +40,63 @@ def _frames(spec: str | None, n: int):
     return read_scene_dataset(tmp, "test")
 
 
+def _shapes(folder: Path | None, cat: str):
+    if folder is None:
+        return None
+    isl = folder / f"{cat}.shapes.isl"
+    return isl if isl.is_file() else folder / f"{cat}.shapes.npz"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
-    ap.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz")
+    ap.add_argument("--shapes", type=Path, help="folder of <category>.shapes.isl / .npz")
     ap.add_argument("--scenes", help="ROOT:SPLIT of a scene benchmark (default: one procedural room)")
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=3)
     a = ap.parse_args()
 
-    from types import SimpleNamespace
+    import detect_reference.multi as numpy_path
 
-    from isa.detection import DetectionParams, DetectParams, detect, detect_frame, load_model
+    from isa.detection import DetectParams, detect, load_model
 
     models = []
     for item in a.model:
         cat, _, path = item.partition("=")
-        shapes = a.shapes / f"{cat}.shapes.npz" if a.shapes else None
-        models.append(load_model(path, shapes=shapes, category=cat))
-    forests = {m.category: m.forest for m in models}
+        models.append(load_model(path, shapes=_shapes(a.shapes, cat), category=cat))
     frames = _frames(a.scenes, a.frames)
     w, h = frames[0].intrinsics.width, frames[0].intrinsics.height
-    variants = {
-        "baseline: detect_frame (one-class, per-category NMS)": None,
-        "detect, no verification": DetectParams(verify=None, refine=None),
-        "detect, verification": DetectParams(refine=None),
-        "detect, verification + refinement": DetectParams(),
+    RP = numpy_path.DetectParams
+    pipelines = {
+        "no verification": (DetectParams(verify=None, refine=None), RP(verify=None, refine=None)),
+        "verification + size": (DetectParams(refine=None), RP(refine=None)),
+        "verification + size + refinement": (DetectParams(), RP()),
     }
+    keys = ["gravity", "planes", "votes", "verify", "refine", "total"]
     rows = []
-    for name, params in variants.items():
-        per_frame: list[dict[str, float]] = []
-        for f in frames:
-            runs = []
-            for _ in range(a.repeats):
-                t0 = time.perf_counter()
-                if params is None:
-                    frame = SimpleNamespace(depth=f.depth, intrinsics=f.intrinsics, R_gravity=f.gravity)
-                    res = detect_frame(forests, frame, DetectionParams())
-                    secs = {"planes": next(iter(res.values())).seconds.get("planes", 0.0),
-                            "votes": sum(d.seconds["vote"] for d in res.values())}
-                else:
-                    secs = dict(detect(f.depth, f.intrinsics, models, gravity=f.gravity, params=params).seconds)
-                secs["total"] = time.perf_counter() - t0
-                runs.append(secs)
-            per_frame.append({k: statistics.median(r.get(k, 0.0) for r in runs) for k in runs[0]})
-        keys = ["gravity", "planes", "votes", "verify", "refine", "total"]
-        rows.append((name, {k: 1000 * statistics.median(p.get(k, 0.0) for p in per_frame) for k in keys}))
-    base = rows[0][1]["total"]
-    print(f"{len(frames)} frame(s) {w}x{h}, {len(models)} categories ({', '.join(forests)}), "
-          f"median of {a.repeats} runs per frame, then median over frames; ms")
-    print(f"| {'pipeline':55s} | gravity | planes | votes | verify | refine | total | x baseline |")
-    print("|" + "---|" * 8)
-    for name, r in rows:
-        print(f"| {name:55s} | {r['gravity']:7.1f} | {r['planes']:6.1f} | {r['votes']:5.1f} | {r['verify']:6.1f} "
-              f"| {r['refine']:6.1f} | {r['total']:5.1f} | {r['total'] / base:10.2f} |")
+    for name, (core_p, numpy_p) in pipelines.items():
+        for path, run, params in (("numpy (baseline)", numpy_path.detect, numpy_p), ("core", detect, core_p)):
+            per_frame: list[dict[str, float]] = []
+            for f in frames:
+                runs = []
+                for _ in range(a.repeats):
+                    t0 = time.perf_counter()
+                    secs = dict(run(f.depth, f.intrinsics, models, gravity=f.gravity, params=params).seconds)
+                    secs["total"] = time.perf_counter() - t0
+                    secs["verify"] = secs.get("verify", 0.0) + secs.pop("nms", 0.0)  # the numpy path times NMS in it
+                    runs.append(secs)
+                per_frame.append({k: statistics.median(r.get(k, 0.0) for r in runs) for k in keys})
+            rows.append((name, path, {k: 1000 * statistics.median(p[k] for p in per_frame) for k in keys}))
+    print(f"{len(frames)} frame(s) {w}x{h}, {len(models)} categories ({', '.join(m.category for m in models)}), "
+          f"gravity given, median of {a.repeats} runs per frame, then median over frames; ms "
+          f"(load average {os.getloadavg()[0]:.1f} at the end)")
+    print(f"| {'pipeline':34s} | {'path':16s} | gravity | planes | votes | verify | refine | total | speed-up |")
+    print("|" + "---|" * 9)
+    base = {}
+    for name, path, r in rows:
+        base.setdefault(name, r["total"])
+        print(f"| {name:34s} | {path:16s} | {r['gravity']:7.1f} | {r['planes']:6.1f} | {r['votes']:5.1f} | {r['verify']:6.1f} "
+              f"| {r['refine']:6.1f} | {r['total']:5.1f} | {base[name] / r['total']:8.1f} |")
     return 0
 
 

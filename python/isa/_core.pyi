@@ -271,3 +271,103 @@ class ShardTrainer:
         """Tree ``t``'s bytes, for ``Forest.assemble``."""
     @property
     def n_parts(self) -> int: ...
+
+# -- scene detection (isa_core::scene) ---------------------------------------------------------
+
+DETECT_DEFAULTS: dict[str, Any]
+"""The core's detection parameters (``isa_core::DetectParams``: nested ``planes``, ``verify``,
+``refine``), which ``isa.detection``'s parameter classes mirror."""
+SHAPES_FORMAT_VERSION: int
+
+class ShapeLibrary:
+    """A category's shape library: surface samples (S, N, 3) float32 and normals of its training
+    shapes (object frame), spacing (S,), bounds (S, 2, 3), names, size range."""
+    def __new__(
+        cls,
+        category: str,
+        points: npt.NDArray[np.float32],
+        normals: npt.NDArray[np.float32],
+        spacing: npt.NDArray[np.float64],
+        bounds: npt.NDArray[np.float64],
+        names: list[str] = ...,
+        size_range: tuple[tuple[float, float], tuple[float, float]] | None = None,
+    ) -> ShapeLibrary: ...
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> ShapeLibrary:
+        """Reads an ``.isl`` file."""
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Writes an ``.isl`` file atomically."""
+    @property
+    def category(self) -> str: ...
+    @property
+    def names(self) -> list[str]: ...
+    @property
+    def size_range(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """``((height_min, height_max), (length_min, length_max))`` metres, or None."""
+    @property
+    def points(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def normals(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def spacing(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def bounds(self) -> npt.NDArray[np.float64]: ...
+    def __len__(self) -> int: ...
+
+def detect(
+    depth: npt.NDArray[np.float32],
+    K: npt.ArrayLike | Any,
+    models: list[dict[str, Any]],
+    gravity: npt.ArrayLike | None = None,
+    planes: dict[str, Any] | None = None,
+    params: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Every category model over one frame (``isa_core::scene::detect``): ``depth`` (H, W) float32
+    metres; ``models`` dicts ``{"category", "forest", "size", "ssc_offset", "shapes", "size_range",
+    "hypotheses"}``; ``gravity`` (3, 3) camera -> upright or None; ``planes`` a ``find_planes``
+    answer or None; ``params`` a ``DETECT_DEFAULTS``-shaped dict. Returns ``{"detections",
+    "gravity", "gravity_source", "floor_height", "planes", "seconds"}``."""
+
+def find_planes(
+    depth: npt.NDArray[np.float32],
+    K: npt.ArrayLike | Any,
+    R_gravity: npt.ArrayLike,
+    params: dict[str, Any] | None = None,
+    floor: bool = True,
+    walls: bool = True,
+) -> dict[str, Any]:
+    """The floor and walls: ``{"planes": [{"kind", "normal", "offset", "n_inliers"}], "removed":
+    (H, W) bool}``."""
+
+def verify_pose(
+    depth: npt.NDArray[np.float32],
+    K: npt.ArrayLike | Any,
+    R: npt.ArrayLike,
+    t: npt.ArrayLike,
+    points: npt.NDArray[np.float64],
+    spacing: float,
+    planes: npt.NDArray[np.bool_] | None = None,
+    params: dict[str, Any] | None = None,
+    n_points: int | None = None,
+) -> dict[str, Any]:
+    """Verification of shape ``points`` at ``(R, t)``: ``{"score", "agree", "violate",
+    "occluded", "missing", "outside"}``."""
+
+def refine_pose(
+    points_up: npt.NDArray[np.float64],
+    K: npt.ArrayLike | Any,
+    width: int,
+    height: int,
+    R: npt.ArrayLike,
+    t: npt.ArrayLike,
+    shape_points: npt.NDArray[np.float64],
+    bounds: npt.ArrayLike,
+    R_gravity: npt.ArrayLike,
+    params: dict[str, Any] | None = None,
+    normals: npt.NDArray[np.float64] | None = None,
+) -> dict[str, Any]:
+    """Upright ICP: ``{"R", "t", "rms", "pairs", "yaw_change", "shift", "converged"}``."""
+
+def nms_across(boxes: npt.NDArray[np.float64], iou: float = 0.25, overlap: float = 0.6) -> list[int]:
+    """Greedy NMS across categories over rows ``[cx, cy, cz, sx, sy, sz, yaw, score]``: kept
+    indices, best first."""

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use serde::Serialize;
 
-use isa_core::{ForestParams, PredictParams};
+use isa_core::{DetectParams, ForestParams, PredictParams};
 
 pub const EXIT_CODES: &str = "\
 Exit codes:
@@ -55,12 +55,17 @@ fn pp() -> PredictParams {
     PredictParams::default()
 }
 
+fn dp() -> DetectParams {
+    DetectParams::default()
+}
+
 /// Category-level 6D object pose from depth images (Intrinsic Structure Adaptor, ISA).
 ///
 /// A forest trained on depth images of one object category (`isa train`) votes for the 6D pose
 /// (rotation R, translation t of the category's semantically selected centre, X_cam = R X_obj + t)
 /// of unseen instances in whole depth images (`isa predict`). `isa inspect` shows what a model
-/// file holds.
+/// file holds. `isa detect` runs several category models over a room frame: every object with
+/// its category, 6D pose, size and a score comparable across categories.
 #[derive(Parser)]
 #[command(name = "isa", version = isa_core::VERSION, after_help = EXIT_CODES)]
 pub struct Cli {
@@ -72,6 +77,7 @@ pub struct Cli {
 pub enum Command {
     Train(TrainArgs),
     Predict(PredictArgs),
+    Detect(DetectArgs),
     Inspect(InspectArgs),
 }
 
@@ -273,4 +279,105 @@ pub struct InspectArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     pub json: bool,
+}
+
+/// Output format of `isa detect`.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DetectFormat {
+    /// One JSON document: per image, its detections (category, R row-major, t in metres, size
+    /// along the object's axes, box centre in the object frame, score, support), the gravity
+    /// used, the floor's height, the parameters and the time per stage.
+    Json,
+    /// BOP challenge results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm),
+    /// one row per detection, obj_id by category (--obj-id).
+    Bop,
+}
+
+/// Detect every object of several categories in room depth images: one ranked list of 6D poses
+/// with sizes (a 9D pose) and scores comparable across categories and frames.
+///
+/// Per frame: gravity (--gravity, else the floor's normal, else the votes), floor and walls
+/// found and removed for the voting, each category forest votes, hypotheses are snapped upright,
+/// set on the floor, verified against the category's training shapes (`<model>.shapes.isl`
+/// beside the model, or in --shapes DIR as `<category>.shapes.isl`; without one the forest's
+/// score and box are used), sized, refined by ICP, and suppressed across categories. Parameters:
+/// the core's DetectParams, overridden by `--params`, overridden by the flags. Example:
+///
+///   isa detect --model chair.isa --model table.isa depth.png --camera camera.json --gravity 0,1,0
+#[derive(Args)]
+#[command(after_help = EXIT_CODES)]
+pub struct DetectArgs {
+    /// Category model: PATH or CATEGORY=PATH (default category: the model's metadata). Repeat
+    /// for every category.
+    #[arg(short, long = "model", value_name = "[CATEGORY=]MODEL", required = true)]
+    pub models: Vec<String>,
+    /// Depth images: 16-bit single-channel PNGs in millimetres (times the camera's depth_scale
+    /// with --camera), 0 = missing.
+    #[arg(value_name = "PNG", required = true)]
+    pub depth: Vec<PathBuf>,
+    /// Pinhole intrinsics in pixels: FX FY CX CY.
+    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera")]
+    pub intrinsics: Option<Vec<f64>>,
+    /// Camera file: a BOP scene_camera.json or camera.json (as for `isa predict`).
+    #[arg(short, long, value_name = "JSON")]
+    pub camera: Option<PathBuf>,
+    /// Gravity in camera coordinates (OpenCV: x right, y down, z forward), any length, e.g.
+    /// 0,1,0 for a level camera [default: the floor's normal, else the votes' up axis].
+    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    pub gravity: Option<Vec<f64>>,
+    /// Folder of shape libraries `<category>.shapes.isl` [default: `<model>.shapes.isl` beside
+    /// each model].
+    #[arg(long, value_name = "DIR")]
+    pub shapes: Option<PathBuf>,
+    /// Image id for a scene_camera.json when the file name is not one [default: from the name].
+    #[arg(long)]
+    pub image_id: Option<u64>,
+    /// BOP scene id for --format bop.
+    #[arg(long, default_value_t = 0)]
+    pub scene_id: u64,
+    /// BOP object id of a category for --format bop, CATEGORY=ID, repeatable [default: the
+    /// models' order, from 1].
+    #[arg(long, value_name = "CATEGORY=ID")]
+    pub obj_id: Vec<String>,
+    /// Output format.
+    #[arg(short, long, value_enum, default_value_t = DetectFormat::Json)]
+    pub format: DetectFormat,
+    /// Output file [default: standard output].
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    #[command(flatten)]
+    pub flags: DetectFlags,
+    /// JSON file of detection parameters (fields of DetectParams: nested planes, verify,
+    /// refine; null switches verify or refine off); flags override it.
+    #[arg(long, value_name = "JSON")]
+    pub params: Option<PathBuf>,
+    /// Worker threads [default: all cores]. Does not change the result.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress display.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// Detection-parameter flags (fields of DetectParams): the given ones form the "flags" overlay.
+#[derive(Args, Serialize)]
+pub struct DetectFlags {
+    #[arg(long, help = dflt("Parts on every STRIDE-th pixel of each forest's voting", dp().stride))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stride: Option<usize>,
+    #[arg(long, help = dflt("Hypotheses per category forest", dp().max_hypotheses))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_hypotheses: Option<usize>,
+    #[arg(long, help = dflt("Detections per image at most", dp().max_detections))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_detections: Option<usize>,
+    #[arg(long, help = dflt("Hypotheses refined per category", dp().refine_top))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refine_top: Option<usize>,
+    #[arg(long, help = dflt("Cross-category NMS: IoU above which a box goes", dp().nms_iou))]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nms_iou: Option<f64>,
+    #[arg(long, help = "Drop detections scoring below this [default: none]")]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_score: Option<f64>,
 }

@@ -1,5 +1,6 @@
 //! `isa` command-line interface: train a category forest from a training-set file, predict 6D
-//! poses in depth PNGs, inspect model files. See `isa --help` and `isa <command> --help`.
+//! poses in depth PNGs, detect every object of several categories in room frames, inspect
+//! model files. See `isa --help` and `isa <command> --help`.
 //!
 //! Files: `args` (the command line), `commands/` (one per subcommand), `inputs` (depth PNGs,
 //! camera files, BOP folders), `output` (JSON, BOP CSV, text), `error` (exit codes),
@@ -24,6 +25,7 @@ fn main() -> ExitCode {
     let res = match cli.command {
         Command::Train(a) => commands::train::run(a),
         Command::Predict(a) => commands::predict::run(a),
+        Command::Detect(a) => commands::detect::run(a),
         Command::Inspect(a) => commands::inspect::run(a),
     };
     match res {

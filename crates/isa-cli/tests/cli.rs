@@ -654,3 +654,123 @@ fn sigint_while_training_leaves_no_half_written_model() {
     let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(names, ["m.isaf"]);
 }
+
+/// A model of the synthetic chair whose metadata holds its box (size, SSC offset), and its
+/// shape library (surface samples of the chair's boxes, written as the core writes `.isl`).
+fn detect_model() -> &'static PathBuf {
+    static MODEL: OnceLock<PathBuf> = OnceLock::new();
+    MODEL.get_or_init(|| {
+        let ts = tmp("boxed.isat");
+        write_trainset(
+            &ts,
+            r#"{"category": "chair", "box": {"category": "chair", "size": [0.46, 0.445, 0.92], "ssc_offset": [0.0, 0.0025, -0.01]}}"#,
+        );
+        let m = tmp("boxed.isa");
+        let o = train_q1(&ts, &m, &["--n-trees", "4", "--max-depth", "14", "--n-candidates", "60"]);
+        assert!(o.status.success(), "train failed: {}", stderr(&o));
+        let (mut pts, mut nrm) = (Vec::new(), Vec::new());
+        let n = 12;
+        for b in synth::chair() {
+            for axis in 0..3 {
+                for sign in [-1.0f64, 1.0] {
+                    for i in 0..n {
+                        for j in 0..n {
+                            let (a, c) = ((axis + 1) % 3, (axis + 2) % 3);
+                            let mut p = b.centre;
+                            p[axis] += sign * b.half[axis];
+                            p[a] += b.half[a] * (2.0 * (i as f64 + 0.5) / n as f64 - 1.0);
+                            p[c] += b.half[c] * (2.0 * (j as f64 + 0.5) / n as f64 - 1.0);
+                            let mut q = [0f32; 3];
+                            q[axis] = sign as f32;
+                            pts.push(p.map(|x| x as f32));
+                            nrm.push(q);
+                        }
+                    }
+                }
+            }
+        }
+        let (lo, hi) = ([-0.23, -0.225, -0.45], [0.23, 0.22, 0.47]);
+        let np = pts.len();
+        let lib = isa_core::scene::ShapeLibrary::new("chair".into(), vec!["synth".into()], None, np, pts, nrm, vec![0.01], vec![[lo, hi]])
+            .unwrap();
+        lib.save(&m.with_extension("shapes.isl")).unwrap();
+        m
+    })
+}
+
+fn floats(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+}
+
+#[test]
+fn detect_two_categories_one_object_json_and_bop() {
+    let m = detect_model().to_str().unwrap().to_string();
+    let (depth, k, r, t) = test_view(3);
+    let png = tmp("000007.png");
+    write_png(&png, 320, 240, depth);
+    let g = format!("{},{},{}", -r[0][2], -r[1][2], -r[2][2]); // the object's -z (down) in the camera
+    let (fx, fy, cx, cy) = (k.fx.to_string(), k.fy.to_string(), k.cx.to_string(), k.cy.to_string());
+    let (chair, toilet) = (format!("chair={m}"), format!("toilet={m}"));
+    let base = ["detect", "--model", &chair, "--model", &toilet, png.to_str().unwrap(), "-k", &fx, &fy, &cx, &cy,
+                "--gravity", &g, "--stride", "2", "-q"];
+    let o = isa(&base);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let img = &doc["images"][0];
+    assert_eq!(img["gravity_source"], "given");
+    assert_eq!(doc["models"][0]["shapes"].as_str().unwrap(), detect_model().with_extension("shapes.isl").to_str().unwrap());
+    let dets = img["detections"].as_array().unwrap();
+    // Both models fire on the one chair: one detection of it survives, verified, on the truth.
+    let near: Vec<&serde_json::Value> = dets.iter().filter(|d| err_t(&floats(&d["t"]), t) < 0.3).collect();
+    assert_eq!(near.len(), 1, "{dets:?}");
+    let best = &dets[0];
+    assert!(err_t(&floats(&best["t"]), t) < 0.05, "{best}");
+    assert!(best["score"].as_f64().unwrap() > 0.5 && best["shape"] == 0, "{best}");
+    let scores: Vec<f64> = dets.iter().map(|d| d["score"].as_f64().unwrap()).collect();
+    assert!(scores.windows(2).all(|w| w[0] >= w[1]));
+    // BOP CSV: one header, a row per detection, obj_id by category.
+    let csv = tmp("detect.csv");
+    let mut args = base.to_vec();
+    args.extend(["--format", "bop", "--obj-id", "toilet=7", "--scene-id", "2", "-o", csv.to_str().unwrap()]);
+    let o = isa(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "scene_id,im_id,obj_id,score,R,t,time");
+    assert_eq!(lines.len(), dets.len() + 1);
+    let want = if best["category"] == "toilet" { "7" } else { "1" };
+    assert!(lines[1].starts_with(&format!("2,7,{want},")), "{}", lines[1]);
+    assert_eq!(text.matches("scene_id").count(), 1);
+}
+
+#[test]
+fn detect_errors_name_their_cause() {
+    let m = detect_model().to_str().unwrap().to_string();
+    let (depth, k, _, _) = test_view(3);
+    let png = tmp("detect_err.png");
+    write_png(&png, 320, 240, depth);
+    let (fx, fy, cx, cy) = (k.fx.to_string(), k.fy.to_string(), k.cx.to_string(), k.cy.to_string());
+    let p = png.to_str().unwrap();
+    let run = |extra: &[&str]| {
+        let mut a = vec!["detect", p, "-k", &fx, &fy, &cx, &cy, "-q"];
+        a.extend_from_slice(extra);
+        isa(&a)
+    };
+    let o = run(&["--model", "nowhere.isa"]);
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    assert!(stderr(&o).contains("nowhere.isa"));
+    let o = run(&["--model", model().to_str().unwrap()]); // trained without a box
+    assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
+    assert!(stderr(&o).contains("box"), "{}", stderr(&o));
+    let o = run(&["--model", &m, "--gravity", "0,0,0"]);
+    assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--gravity"));
+    let o = run(&["--model", &m, "--shapes", tmp("no_shapes_here").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    assert!(stderr(&o).contains("chair.shapes.isl"), "{}", stderr(&o));
+    let params = tmp("detect_params.json");
+    std::fs::write(&params, r#"{"verify": {"lateral": -1}}"#).unwrap();
+    let o = run(&["--model", &m, "--params", params.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
+    assert!(stderr(&o).contains("verify.lateral"), "{}", stderr(&o));
+}

@@ -12,6 +12,8 @@
 //!   traversal API, and `forest::flat`: the fast inference traversal kept with the forest);
 //! * inference: [`vote`] (whole-image voting in `vote::predict`, then mode finding: grid,
 //!   gather, position modes, NMS, rotation modes);
+//! * scenes: [`scene`] (every category model over one room frame: gravity, planes, votes,
+//!   verification against shape libraries, size, ICP refinement, NMS across categories);
 //! * shared: [`rotation`] (quaternions and matrices on nalgebra), [`rng`] (seeding),
 //!   [`params`] (every parameter set, validated once, one JSON overlay), [`metadata`] (what a
 //!   model says about itself), [`model_io`] (model files), [`atomic`] (whole-or-nothing file writes), [`error`].
@@ -30,6 +32,7 @@ pub mod params;
 pub(crate) mod probe;
 pub mod rng;
 pub mod rotation;
+pub mod scene;
 pub mod shards;
 pub mod splitter;
 pub mod targets;
@@ -42,7 +45,7 @@ pub use error::{IsaError, Result};
 pub use features::{Feature, BACKGROUND_MM};
 pub use forest::{Forest, PartVote, TrainingSet};
 pub use metadata::ModelMetadata;
-pub use params::{ForestParams, PredictParams, Quality, Valid, VoteParams};
+pub use params::{DetectParams, ForestParams, PredictParams, Quality, Valid, VoteParams};
 pub use tree::{Tree, Vote};
 
 /// Version of this crate, written into every model file.

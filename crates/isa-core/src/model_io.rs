@@ -191,7 +191,8 @@ impl<'a> Reader<'a> {
 
 /// Metadata and inference defaults of a version-1 file (free-form metadata JSON).
 fn legacy_metadata(raw: String) -> R<(ModelMetadata, crate::params::Valid<PredictParams>)> {
-    match split_metadata(&raw, "metadata", true) {
+    // Python's json module wrote NaN and infinities as bare tokens, which JSON has not: null.
+    match split_metadata(&python_floats_to_null(&raw), "metadata", true) {
         Ok(v) => Ok(v),
         // Bad inference defaults are an error; metadata that is not an object is kept as text.
         Err(e) if e.to_string().contains(crate::metadata::PREDICT_DEFAULTS_KEY) => {
@@ -285,6 +286,28 @@ pub fn decode_tree(bytes: &[u8], what: &str) -> Result<Tree> {
         return Err(err(format!("{} unexpected bytes after the tree", r.left())));
     }
     Ok(tree)
+}
+
+/// `NaN`, `Infinity` and `-Infinity` outside JSON strings replaced by `null`.
+fn python_floats_to_null(raw: &str) -> String {
+    let mut out = String::with_capacity(raw.len());
+    let (mut in_str, mut escaped) = (false, false);
+    let mut rest = raw;
+    while let Some(c) = rest.chars().next() {
+        if in_str {
+            in_str = escaped || c != '"';
+            escaped = !escaped && c == '\\';
+        } else if c == '"' {
+            in_str = true;
+        } else if let Some(tok) = ["-Infinity", "Infinity", "NaN"].iter().find(|t| rest.starts_with(**t)) {
+            out.push_str("null");
+            rest = &rest[tok.len()..];
+            continue;
+        }
+        out.push(c);
+        rest = &rest[c.len_utf8()..];
+    }
+    out
 }
 
 /// Parses a payload of format `version` (after header checks). Exposed for fuzzing.
@@ -524,6 +547,26 @@ mod tests {
         assert_eq!(u32::from_le_bytes(v2[8..12].try_into().unwrap()), FORMAT_VERSION);
         assert!(v2.ends_with(&trees));
         assert_eq!(decode(&v2, "v2").unwrap(), f);
+    }
+
+    #[test]
+    fn version_1_metadata_with_python_nan_keeps_its_fields() {
+        // Python's json.dumps wrote NaN bare (the protocol models' SSC statistics); the box and
+        // category must still be read, the NaN read as null, a "NaN" inside a string kept.
+        let f = small_forest();
+        let raw = r#"{"category": "bed", "box": {"category": "bed", "size": [1.0, 2.0, 0.5], "ssc_offset": [0.0, 0.1, -0.2], "n_instances": 2}, "ssc": {"d": [0.2, NaN, -Infinity, Infinity], "note": "NaN \" Infinity"}}"#;
+        let mut p = Vec::new();
+        put_str(&mut p, "0.0.1");
+        put_str(&mut p, &f.params.to_json());
+        put_str(&mut p, raw);
+        encode_trees(&mut p, &f);
+        let g = decode(&seal(1, &p), "old").unwrap();
+        assert!(g.metadata.extra.get("legacy_metadata").is_none());
+        assert_eq!(g.metadata.category.as_deref(), Some("bed"));
+        assert_eq!(g.metadata.category_box.as_ref().unwrap().size, [1.0, 2.0, 0.5]);
+        let ssc = &g.metadata.extra["ssc"];
+        assert_eq!(ssc["d"], serde_json::json!([0.2, null, null, null]));
+        assert_eq!(ssc["note"], "NaN \" Infinity");
     }
 
     #[test]

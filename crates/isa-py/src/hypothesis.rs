@@ -30,6 +30,11 @@ pub struct PyHypothesis {
 }
 
 impl PyHypothesis {
+    /// The core hypothesis.
+    pub fn inner(&self) -> &CoreHypothesis {
+        &self.h
+    }
+
     fn item<'py>(&self, py: Python<'py>, key: &str) -> Option<Bound<'py, PyAny>> {
         let h = &self.h;
         Some(match key {

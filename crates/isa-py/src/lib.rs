@@ -3,7 +3,7 @@
 //! core errors to their Python exception classes (`errors`), scalar arguments checked into
 //! `isa` errors (`scalars`). One file per domain: the forest
 //! (`forest`, with `predict` / `image_votes` methods), inference (`predict`, `hypothesis`),
-//! features (`features`), training-set files (`trainset`), and test hooks in the private
+//! features (`features`), scene detection (`scene`), training-set files (`trainset`), and test hooks in the private
 //! submodule `isa._core._testing` (`testing`).
 
 use pyo3::prelude::*;
@@ -16,8 +16,9 @@ pub mod hypothesis;
 pub mod params;
 pub mod predict;
 pub mod scalars;
-pub mod testing;
+pub mod scene;
 pub mod shards;
+pub mod testing;
 pub mod trainset;
 
 #[pymodule]
@@ -32,6 +33,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(features::sample_parts, m)?)?;
     m.add_function(wrap_pyfunction!(features::depth_features, m)?)?;
     predict::register(m)?;
+    scene::register(m)?;
     trainset::register(m)?;
     shards::register(m)?;
     m.add_submodule(&testing::submodule(m.py())?)?;

@@ -24,7 +24,7 @@ use crate::params::{kwargs_json, predict_params, KWARGS};
 
 /// Intrinsics from an object with `fx, fy, cx, cy` attributes (e.g. `isa.camera.Intrinsics`),
 /// a 3x3 camera matrix, or a sequence `(fx, fy, cx, cy)`.
-fn intrinsics(k: &Bound<'_, PyAny>) -> PyResult<Intrinsics> {
+pub(crate) fn intrinsics(k: &Bound<'_, PyAny>) -> PyResult<Intrinsics> {
     let i = if k.hasattr("fx")? {
         let num = |a: &str| scalars::number(&k.getattr(a)?, &format!("K.{a}"));
         Intrinsics {
@@ -94,6 +94,22 @@ fn depth_mm(depth: &Bound<'_, PyAny>) -> PyResult<(Vec<u16>, usize, usize)> {
         )));
     };
     Ok((px, w, h))
+}
+
+/// The `_core.Forest` behind `obj`: itself, or its `.core` (an `isa.forest.Forest`).
+pub(crate) fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyForest>> {
+    if let Ok(f) = obj.cast::<PyForest>() {
+        return Ok(f.clone());
+    }
+    if let Ok(c) = obj.getattr("core") {
+        if let Ok(f) = c.cast::<PyForest>() {
+            return Ok(f.clone());
+        }
+    }
+    Err(input_err(format!(
+        "forest: expected an isa.forest.Forest or isa._core.Forest, got {}",
+        describe(obj)
+    )))
 }
 
 /// The call's `n_threads`, else the forest's setting.

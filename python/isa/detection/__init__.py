@@ -36,7 +36,7 @@ from isa._reexport import lazy_reexport
 
 __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
     "planes": [
-        "PlaneParams", "Plane", "find_planes", "PlaneRemoval", "remove_planes",
+        "PlaneParams", "Plane", "PlaneRemoval", "remove_planes",
     ],
     "category_boxes": [
         "CategoryBox", "category_box", "box_metadata", "model_box",

@@ -2,7 +2,9 @@
 
 Verification and refinement compare the observed depth with the category's own training shapes
 at a hypothesis' pose, and the best-fitting shape gives the object's size (a 9D pose). The
-library is small (a few thousand points per shape) and saved beside the model as ``.npz``.
+library is small (a few thousand points per shape) and saved beside the model as ``.isl`` (the
+core's versioned, checksummed format, which ``isa detect`` reads; ``isa_core::scene::shapes``)
+or ``.npz`` (older files).
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ N_POINTS = 3000
 class ShapeLibrary:
     """``points`` (S, N, 3) float32 surface samples per shape (object frame, metres, the category's
     origin at 0); ``spacing`` (S,) their mean spacing (sqrt(area / N), metres); ``bounds`` (S, 2, 3)
-    each shape's axis-aligned bounds; ``names`` where each shape came from."""
+    each shape's axis-aligned bounds; ``names`` where each shape came from; ``size_range``
+    ``((height_min, height_max), (length_min, length_max))`` metres, the sizes the size fit may
+    reach (default: the category's :data:`isa.categories.SIZES`, None for an unknown one)."""
 
     category: str
     points: np.ndarray
@@ -32,6 +36,7 @@ class ShapeLibrary:
     spacing: np.ndarray
     bounds: np.ndarray
     names: tuple[str, ...] = ()
+    size_range: tuple[tuple[float, float], tuple[float, float]] | None = None
 
     def __post_init__(self) -> None:
         p = np.ascontiguousarray(self.points, dtype=np.float32)
@@ -45,6 +50,14 @@ class ShapeLibrary:
         object.__setattr__(self, "spacing", np.asarray(self.spacing, dtype=float).reshape(len(p)))
         object.__setattr__(self, "bounds", np.asarray(self.bounds, dtype=float).reshape(len(p), 2, 3))
         object.__setattr__(self, "names", tuple(self.names))
+        if self.size_range is None:
+            from isa.categories import SIZES
+
+            r = SIZES.get(self.category)
+            object.__setattr__(self, "size_range", None if r is None else (tuple(r.height), tuple(r.length)))
+        else:
+            h, length = self.size_range
+            object.__setattr__(self, "size_range", ((float(h[0]), float(h[1])), (float(length[0]), float(length[1]))))
 
     def __len__(self) -> int:
         return len(self.points)
@@ -59,14 +72,52 @@ class ShapeLibrary:
         """(S, 3) each shape's box centre in the object frame."""
         return self.bounds.mean(1)
 
+    @property
+    def core(self):
+        """The library as an ``isa._core.ShapeLibrary`` (made once), for the core's detector."""
+        c = self.__dict__.get("_core")
+        if c is None:
+            from isa import _core
+
+            c = _core.ShapeLibrary(self.category, self.points, self.normals, np.ascontiguousarray(self.spacing),
+                                   np.ascontiguousarray(self.bounds), list(self.names), self.size_range)
+            object.__setattr__(self, "_core", c)
+        return c
+
     def save(self, path: str | Path) -> None:
+        """``.isl`` (the core's format) or ``.npz``, by the file's suffix; written atomically."""
+        path = Path(path)
+        if path.suffix == ".isl":
+            self.core.save(path)
+            return
+        extra = {} if self.size_range is None else {"size_range": np.asarray(self.size_range, dtype=float)}
         save_npz(path, category=self.category, points=self.points, normals=self.normals, spacing=self.spacing,
-                 bounds=self.bounds, names=np.array(self.names, dtype=str))
+                 bounds=self.bounds, names=np.array(self.names, dtype=str), **extra)
 
     @classmethod
     def load(cls, path: str | Path) -> "ShapeLibrary":
+        """A library from an ``.isl`` or ``.npz`` file (by its first bytes)."""
+        path = Path(path)
+        if path.is_file() and _magic(path) == b"ISASHAPE":
+            from isa import _core
+
+            try:
+                c = _core.ShapeLibrary.load(path)
+            except ValueError as exc:
+                raise DataError(f"{path}: not a shape library ({exc})") from None
+            return cls(c.category, c.points, c.normals, c.spacing, c.bounds, tuple(c.names), c.size_range)
         z = load_npz(path, "shape library", ("category", "points", "normals", "spacing", "bounds", "names"))
-        return cls(str(z["category"]), z["points"], z["normals"], z["spacing"], z["bounds"], tuple(z["names"].tolist()))
+        size_range = None
+        with np.load(path) as raw:
+            if "size_range" in raw:
+                size_range = tuple(map(tuple, raw["size_range"].tolist()))
+        return cls(str(z["category"]), z["points"], z["normals"], z["spacing"], z["bounds"], tuple(z["names"].tolist()),
+                   size_range)
+
+
+def _magic(path: Path) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(8)
 
 
 def save_npz(path: str | Path, **arrays) -> None:

@@ -1,6 +1,7 @@
 //! One module per subcommand, and what they share: reading JSON and model files, the
 //! parameter overlay sources.
 
+pub mod detect;
 pub mod inspect;
 pub mod predict;
 pub mod train;

@@ -1,7 +1,7 @@
 //! `isa predict`: depth PNGs (or a BOP scene folder) and their intrinsics, the model's inference
 //! defaults overlaid by `--params` and the flags (the core's overlay), ranked hypotheses out.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use serde_json::Value;
@@ -21,9 +21,9 @@ pub struct ImageJob {
     pub path: PathBuf,
     pub id: Option<u64>,
     pub k: Intrinsics,
-    expected: Option<(usize, usize)>,
-    scale: f64,
-    source: String,
+    pub expected: Option<(usize, usize)>,
+    pub scale: f64,
+    pub source: String,
 }
 
 /// `base` overlaid with the parameter file and the flags, checked.
@@ -77,21 +77,30 @@ fn jobs(a: &PredictArgs) -> CliResult<(Vec<ImageJob>, Option<u64>)> {
                 .into(),
         ));
     }
-    let cam = a
-        .camera
-        .as_ref()
-        .map(|c| inputs::CameraFile::read(c))
-        .transpose()?;
+    Ok((
+        image_jobs(&a.depth, a.camera.as_deref(), a.intrinsics.as_deref(), a.image_id)?,
+        a.scene_id,
+    ))
+}
+
+/// The jobs of depth PNGs with their intrinsics from `camera` (a BOP camera file) or
+/// `intrinsics` (FX FY CX CY); `image_id` names a single image (else the file names do).
+pub fn image_jobs(
+    depth: &[PathBuf],
+    camera: Option<&Path>,
+    intrinsics: Option<&[f64]>,
+    image_id: Option<u64>,
+) -> CliResult<Vec<ImageJob>> {
+    let cam = camera.map(inputs::CameraFile::read).transpose()?;
     let mut out = Vec::new();
-    for f in &a.depth {
-        let id = a
-            .image_id
-            .filter(|_| a.depth.len() == 1)
+    for f in depth {
+        let id = image_id
+            .filter(|_| depth.len() == 1)
             .or_else(|| inputs::id_from_stem(f));
-        let (k, expected, scale, source) = match (&cam, &a.intrinsics) {
+        let (k, expected, scale, source) = match (&cam, intrinsics) {
             (Some(c), _) => {
                 let (k, e, s) = c.for_image(id)?;
-                (k, e, s, a.camera.as_ref().unwrap().display().to_string())
+                (k, e, s, camera.unwrap().display().to_string())
             }
             (None, Some(v)) => {
                 let k = Intrinsics {
@@ -119,7 +128,7 @@ fn jobs(a: &PredictArgs) -> CliResult<(Vec<ImageJob>, Option<u64>)> {
             source,
         });
     }
-    Ok((out, a.scene_id))
+    Ok(out)
 }
 
 pub fn run(a: PredictArgs) -> CliResult<()> {

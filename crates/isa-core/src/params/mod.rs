@@ -9,10 +9,12 @@
 //! ([`ForestParams::overlay`], [`PredictParams::overlay`], [`VoteParams::overlay`]) whose
 //! messages name the key and where it came from.
 
+mod detect;
 mod forest;
 mod overlay;
 mod predict;
 
+pub use detect::{DetectParams, PlaneParams, RefineParams, VerifyParams, DEPTH_TOLERANCE};
 pub use forest::{ForestParams, Quality};
 pub use overlay::overlay_json;
 pub use predict::{PredictParams, VoteParams};

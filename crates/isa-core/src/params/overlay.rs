@@ -63,7 +63,8 @@ fn merge(base: &mut Value, over: &Map<String, Value>, source: &str, prefix: &str
                     "{source}: unknown parameter \"{prefix}{k}\"; known: {known:?}"
                 )))
             }
-            Some(slot) if slot.is_object() => {
+            // null switches an optional parameter set off (a non-optional one fails to parse).
+            Some(slot) if slot.is_object() && !v.is_null() => {
                 let o = v.as_object().ok_or_else(|| {
                     bad(format!(
                         "{source}: {prefix}{k}: expected a JSON object, got {v}"

@@ -1,0 +1,196 @@
+//! `isa detect`: several category models (with their shape libraries) over depth PNGs, one
+//! ranked list of detections per image (the core's `scene::detect`), as JSON or BOP CSV.
+
+use std::path::PathBuf;
+
+use serde_json::{json, Value};
+
+use isa_core::scene::gravity::rotation_from_up;
+use isa_core::scene::{self, Camera, DetectOutput, SceneModel, ShapeLibrary};
+use isa_core::{DetectParams, Forest, Valid};
+
+use super::predict::{image_jobs, ImageJob};
+use super::{flags_json, load_model, params_file, FLAGS};
+use crate::args::{DetectArgs, DetectFormat};
+use crate::error::{CliError, CliResult};
+use crate::inputs;
+use crate::output;
+use crate::progress::{bar, spinner, with_threads};
+
+/// One `--model` with what it needs.
+struct Model {
+    category: String,
+    path: PathBuf,
+    forest: Forest,
+    shapes: Option<(ShapeLibrary, PathBuf)>,
+}
+
+fn params(sources: &[(Value, String)]) -> CliResult<Valid<DetectParams>> {
+    let mut p = DetectParams::default();
+    for (json, source) in sources {
+        p.overlay(json, source)?;
+    }
+    Ok(p.check()?)
+}
+
+fn load_models(a: &DetectArgs) -> CliResult<Vec<Model>> {
+    let mut out: Vec<Model> = Vec::new();
+    for spec in &a.models {
+        let (cat, path) = match spec.split_once('=') {
+            Some((c, p)) if !c.is_empty() => (Some(c.to_string()), PathBuf::from(p)),
+            _ => (None, PathBuf::from(spec)),
+        };
+        let forest = load_model(&path)?;
+        let category = cat.or_else(|| forest.metadata.category.clone()).ok_or_else(|| {
+            CliError::param(format!(
+                "--model {spec}: the model names no category; give CATEGORY={}",
+                path.display()
+            ))
+        })?;
+        if out.iter().any(|m| m.category == category) {
+            return Err(CliError::param(format!("--model {spec}: category {category} given twice")));
+        }
+        let shapes_path = match &a.shapes {
+            Some(dir) => dir.join(format!("{category}.shapes.isl")),
+            None => path.with_extension("shapes.isl"),
+        };
+        let shapes = if shapes_path.exists() {
+            Some((ShapeLibrary::load(&shapes_path)?, shapes_path))
+        } else if a.shapes.is_some() {
+            return Err(CliError::missing(&shapes_path, "shape library"));
+        } else {
+            None
+        };
+        out.push(Model { category, path, forest, shapes });
+    }
+    Ok(out)
+}
+
+fn gravity(a: &DetectArgs) -> CliResult<Option<nalgebra::Matrix3<f64>>> {
+    let Some(g) = &a.gravity else { return Ok(None) };
+    let v = nalgebra::Vector3::new(g[0], g[1], g[2]);
+    if !(v.iter().all(|x| x.is_finite()) && v.norm() > 1e-9) {
+        return Err(CliError::param(format!("--gravity: expected a non-zero vector, got {g:?}")));
+    }
+    Ok(Some(rotation_from_up(&-v)))
+}
+
+fn obj_ids(a: &DetectArgs, models: &[Model]) -> CliResult<Vec<u64>> {
+    let mut ids: Vec<u64> = (1..=models.len() as u64).collect();
+    for spec in &a.obj_id {
+        let bad = || CliError::param(format!("--obj-id {spec}: expected CATEGORY=ID"));
+        let (c, id) = spec.split_once('=').ok_or_else(bad)?;
+        let id: u64 = id.parse().map_err(|_| bad())?;
+        let k = models
+            .iter()
+            .position(|m| m.category == c)
+            .ok_or_else(|| CliError::param(format!("--obj-id {spec}: no model of category {c}")))?;
+        ids[k] = id;
+    }
+    Ok(ids)
+}
+
+fn detection_json(d: &scene::Detection) -> Value {
+    json!({
+        "category": d.category, "R": d.r, "t": d.t, "size": d.size, "box_centre": d.box_centre,
+        "score": d.score, "support": d.support, "forest_score": d.forest_score, "shape": d.shape,
+        "refined": d.refined,
+    })
+}
+
+fn to_json(models: &[Model], params: &DetectParams, results: &[(ImageJob, Camera, DetectOutput, f64)]) -> String {
+    let images: Vec<Value> = results
+        .iter()
+        .map(|(job, cam, out, secs)| {
+            json!({
+                "depth": job.path.display().to_string(),
+                "image_id": job.id,
+                "width": cam.width,
+                "height": cam.height,
+                "intrinsics": job.k,
+                "gravity": scene::rows(&out.gravity),
+                "gravity_source": out.gravity_source.name(),
+                "floor_height": out.floor_height,
+                "seconds": secs,
+                "stages": out.seconds.iter().map(|(k, v)| (k.to_string(), json!(v))).collect::<serde_json::Map<_, _>>(),
+                "detections": out.detections.iter().map(detection_json).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let doc = json!({
+        "isa_version": isa_core::VERSION,
+        "models": models.iter().map(|m| json!({
+            "category": m.category, "model": m.path.display().to_string(),
+            "shapes": m.shapes.as_ref().map(|s| s.1.display().to_string()),
+        })).collect::<Vec<_>>(),
+        "units": {"t": "metres, camera frame (OpenCV), X_cam = R X_obj + t", "R": "row-major",
+                  "size": "metres, along the object's x, y, z", "gravity": "camera -> upright (z up)"},
+        "params": params,
+        "images": images,
+    });
+    serde_json::to_string_pretty(&doc).expect("serialise") + "\n"
+}
+
+fn to_bop(models: &[Model], ids: &[u64], scene_id: u64, results: &[(ImageJob, Camera, DetectOutput, f64)]) -> CliResult<String> {
+    let mut s = String::from("scene_id,im_id,obj_id,score,R,t,time\n");
+    for (job, _, out, secs) in results {
+        let im_id = job.id.ok_or_else(|| {
+            CliError::param(format!(
+                "--format bop needs an image id: name {} by its id (000012.png) or pass --image-id",
+                job.path.display()
+            ))
+        })?;
+        for d in &out.detections {
+            let k = models.iter().position(|m| m.category == d.category).expect("a model's category");
+            let r: Vec<String> = d.r.iter().flatten().map(|v| format!("{v:.8}")).collect();
+            let t: Vec<String> = d.t.iter().map(|v| format!("{:.4}", v * 1000.0)).collect();
+            s.push_str(&format!(
+                "{scene_id},{im_id},{},{:.6},{},{},{secs:.6}\n",
+                ids[k],
+                d.score,
+                r.join(" "),
+                t.join(" ")
+            ));
+        }
+    }
+    Ok(s)
+}
+
+pub fn run(a: DetectArgs) -> CliResult<()> {
+    let mut sources: Vec<(Value, String)> = params_file(a.params.as_deref())?.into_iter().collect();
+    sources.push((flags_json(&a.flags), FLAGS.to_string()));
+    let params = params(&sources)?; // bad flags or parameter files fail before a model is read
+    let g = gravity(&a)?;
+    let jobs = image_jobs(&a.depth, a.camera.as_deref(), a.intrinsics.as_deref(), a.image_id)?;
+    let pb = spinner(a.quiet, format!("loading {} models", a.models.len()));
+    let models = load_models(&a)?;
+    pb.finish_and_clear();
+    let ids = obj_ids(&a, &models)?;
+    let scene_models = models
+        .iter()
+        .map(|m| {
+            SceneModel::from_forest(&m.category, &m.forest, m.shapes.as_ref().map(|s| &s.0), &m.path.display().to_string())
+                .map_err(|e| CliError::input(e.to_string()))
+        })
+        .collect::<CliResult<Vec<_>>>()?;
+    let pb = bar(a.quiet || jobs.len() < 2, jobs.len() as u64, "detecting");
+    let mut results = Vec::with_capacity(jobs.len());
+    for job in jobs {
+        let d = inputs::read_depth_png(&job.path, job.scale)?;
+        inputs::check_size(&d, &job.k, job.expected, &job.source)?;
+        let metres: Vec<f32> = d.mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
+        let cam = Camera::new(job.k, d.width, d.height)?;
+        let t0 = std::time::Instant::now();
+        let out = with_threads(a.threads, || scene::detect(&metres, cam, &scene_models, g, None, &params))??;
+        let secs = t0.elapsed().as_secs_f64();
+        results.push((job, cam, out, secs));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let text = match a.format {
+        DetectFormat::Json => to_json(&models, &params, &results),
+        DetectFormat::Bop => to_bop(&models, &ids, a.scene_id, &results)?,
+    };
+    output::write(a.output.as_deref(), &text)
+}
+

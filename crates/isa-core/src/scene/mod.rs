@@ -1,0 +1,132 @@
+//! Detection in a room: every category model over one depth frame, one ranked list of 6D poses
+//! with sizes (the Rust side of `isa.detection.detect`, and `isa detect`).
+//!
+//! Stages, in data-flow order (each module holds one):
+//! * [`gravity`]: the camera -> upright rotation, given or from the floor's normal (RANSAC);
+//! * [`planes`]: floor and walls of the frame in the upright frame (gravity-constrained RANSAC),
+//!   set to missing depth for the voting;
+//! * votes: each category forest ([`crate::vote::predict`]) on the cleaned depth, hypotheses
+//!   snapped upright and set on the floor ([`detect`]);
+//! * [`verify`]: z-buffered, point-sampled training shapes ([`shapes`]) against the raw depth;
+//!   the best shape and a per-axis scale give the score and the size;
+//! * [`refine`]: upright ICP (yaw and translation) of the best hypotheses;
+//! * [`nms`]: one ranked list, boxes suppressed across categories.
+//!
+//! Frames: `R_gravity` maps camera to upright coordinates (`X_up = R_gravity X_cam`, z up); a
+//! pose `(R, t)` maps object to camera (`X_cam = R X_obj + t`). All geometry is `f64`.
+
+pub mod detect;
+pub mod gravity;
+pub mod nms;
+pub mod planes;
+pub mod refine;
+pub mod shapes;
+pub mod verify;
+
+pub use crate::params::{DetectParams, PlaneParams, RefineParams, VerifyParams};
+pub use detect::{detect, DetectOutput, Detection, SceneModel};
+pub use shapes::{ShapeLibrary, SizeRange};
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::error::{IsaError, Result};
+use crate::vote::Intrinsics;
+
+/// A pinhole camera with its image size.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub k: Intrinsics,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl Camera {
+    /// Checks the intrinsics and that the image is not empty.
+    pub fn new(k: Intrinsics, width: usize, height: usize) -> Result<Camera> {
+        k.validate()?;
+        if width == 0 || height == 0 {
+            return Err(IsaError::InvalidInput(format!(
+                "camera: image size {width}x{height}"
+            )));
+        }
+        Ok(Camera { k, width, height })
+    }
+}
+
+/// A depth frame in metres (row-major, 0 = missing) and its camera.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame<'a> {
+    pub depth: &'a [f32],
+    pub camera: Camera,
+}
+
+impl<'a> Frame<'a> {
+    /// Checks the buffer size against the camera and that every value is finite.
+    pub fn new(depth: &'a [f32], camera: Camera) -> Result<Frame<'a>> {
+        if depth.len() != camera.width * camera.height {
+            return Err(IsaError::InvalidInput(format!(
+                "depth: {} pixels for a {}x{} camera",
+                depth.len(),
+                camera.width,
+                camera.height
+            )));
+        }
+        if let Some(i) = depth.iter().position(|d| !d.is_finite()) {
+            return Err(IsaError::InvalidInput(format!(
+                "depth: pixel {i} is not finite"
+            )));
+        }
+        Ok(Frame { depth, camera })
+    }
+
+    /// Camera-frame points of the valid pixels with their pixel index.
+    pub fn points(&self) -> (Vec<Vector3<f64>>, Vec<usize>) {
+        let k = &self.camera.k;
+        let w = self.camera.width;
+        let mut pts = Vec::new();
+        let mut idx = Vec::new();
+        for (i, &d) in self.depth.iter().enumerate() {
+            if d > 0.0 {
+                let z = f64::from(d);
+                let p = k.back_project((i % w) as f64, (i / w) as f64, z);
+                pts.push(Vector3::new(p[0], p[1], p[2]));
+                idx.push(i);
+            }
+        }
+        (pts, idx)
+    }
+}
+
+/// The rotation by `yaw` (radians) about z.
+pub fn rot_z(yaw: f64) -> Matrix3<f64> {
+    let (s, c) = yaw.sin_cos();
+    Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
+}
+
+/// The yaw of the rotation about z closest (Frobenius) to `m`.
+pub fn yaw_of(m: &Matrix3<f64>) -> f64 {
+    (m[(1, 0)] - m[(0, 1)]).atan2(m[(0, 0)] + m[(1, 1)])
+}
+
+/// `np.percentile(values, q)` (linear interpolation); `values` is sorted in place.
+pub(crate) fn percentile(values: &mut [f64], q: f64) -> f64 {
+    values.sort_unstable_by(f64::total_cmp);
+    let n = values.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    let pos = q / 100.0 * (n - 1) as f64;
+    let lo = pos.floor() as usize;
+    let hi = (lo + 1).min(n - 1);
+    values[lo] + (values[hi] - values[lo]) * (pos - lo as f64)
+}
+
+/// A row-major 3x3 array as a matrix.
+pub fn mat(a: &[[f64; 3]; 3]) -> Matrix3<f64> {
+    Matrix3::from_fn(|i, j| a[i][j])
+}
+
+/// A matrix as a row-major 3x3 array.
+pub fn rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
+    [0, 1, 2].map(|i| [0, 1, 2].map(|j| m[(i, j)]))
+}
