@@ -22,11 +22,11 @@ from tqdm.auto import tqdm
 from isa.categories import CATEGORIES
 from isa.data import bop
 from isa.exceptions import DataError
-from isa.render.dataset import ObjectSpec, RenderSummary, _write_models, check_settings, procedural_objects
+from isa.render.dataset import ObjectSpec, RenderSummary, _write_models, procedural_objects
 from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.scenes.cameras import CameraRig, sample_camera
 from isa.scenes.rooms import RoomParams, make_room
-from isa.scenes.writer import DELTA_MM
+from isa.scenes.writer import DELTA_MM, check_settings
 
 __all__ = ["ContextParams", "render_context_dataset", "visible_mask"]
 
