@@ -92,7 +92,7 @@ def weighted_predict(forest, fg: LeafForeground | None, depth: np.ndarray, intri
                      power: float = 1.0, **params) -> list[dict]:
     """:meth:`isa.forest.model.Forest.predict` with every vote weighted by ``p(object | leaf) ** power``
     (``fg`` None: the plain votes, through the same path). ``params``: the mode-finding keywords
-    of :func:`isa._core.find_modes` (default: the model's ``predict_defaults``)."""
+    of :func:`isa._core.find_modes` (default: the model's inference defaults, ``Forest.predict_defaults``)."""
     from isa import _core
 
     img = depth_mm(depth)
@@ -108,9 +108,7 @@ def weighted_predict(forest, fg: LeafForeground | None, depth: np.ndarray, intri
     if fg is not None:
         leaves = forest.apply([img], parts)
         w = w * fg.probs[v["tree"], leaves[v["part"], v["tree"]]] ** power
-    meta = forest.metadata
-    defaults = meta.get("predict_defaults", {}) if isinstance(meta, dict) else {}
-    kw = {**defaults, **params}
+    kw = {**forest.predict_defaults, **params}
     for k in ("stride", "min_depth", "max_depth", "min_leaf_weight"):
         kw.pop(k, None)
     return _core.find_modes(np.ascontiguousarray(pos), np.ascontiguousarray(v["rotation"]),
