@@ -57,7 +57,6 @@ def main() -> int:
     a = ap.parse_args()
 
     import detect_reference.multi as numpy_path
-
     from isa.detection import DetectParams, detect, load_model
 
     models = []

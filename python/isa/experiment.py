@@ -64,6 +64,7 @@ class ExperimentConfig:
     max_offset: float | None = None  # feature reach, pixel·metres; None: pipeline.scaled_max_offset (size-aware)
     mirror: bool = False  # add the mirrored copy of every training view of a mirror-symmetric instance (isa.privileged.mirror)
     canonical: bool = False  # label training views of turn-symmetric instances with one canonical pose (isa.privileged.symmetry)
+    context: bool = False  # the forests learn from views of each instance standing in a room (isa.scenes.context)
     scenes: int = 0  # procedural rooms of the scene benchmark (isa.scenes) to detect in with the Q1+Q2+Q3 forests
     scene_views: int = 2  # camera views per room
     seed: int = 0
@@ -120,12 +121,20 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
                    views=lambda o: default_test_views(o, per_obj, seed=cfg.seed))
     tm["render"] = time.perf_counter() - t0
     train_frames = pipeline.load_frames(data, "train", lazy=True)  # read on use: beyond runs hold 6,052 views
+    forest_views = train_frames
+    if cfg.context:  # the forests' own views; Linemod and the figures keep the isolated ones
+        from isa.scenes.context import render_context_dataset
+
+        t0 = time.perf_counter()
+        render_context_dataset(out / "data" / f"{category}-context", train.objects, category, cfg.views, seed=cfg.seed)
+        tm["render_context"] = time.perf_counter() - t0
+        forest_views = pipeline.load_frames(out / "data" / f"{category}-context", "train", lazy=True)
     # Linemod and the figures keep the rendered views only.
-    forest_frames, counts = augmented_frames(train_frames, train.objects, cfg.mirror, cfg.canonical)
+    forest_frames, counts = augmented_frames(forest_views, train.objects, cfg.mirror, cfg.canonical)
     res.update(counts)
     test_frames = _test_frames(data, cfg.test_images)
     t0 = time.perf_counter()
-    ts = pipeline.training_set(forest_frames, train.skeletons, stride=cfg.stride)
+    ts = pipeline.training_set(forest_frames, train.skeletons, stride=cfg.stride, context=cfg.context)
     tm["annotate"] = time.perf_counter() - t0
     res.update(train_images=len(forest_frames), train_parts=len(ts), test_images=len(test_frames))
 
@@ -133,7 +142,7 @@ def run_category(cfg: ExperimentConfig, category: str, out: Path, report: Report
     pts = {k: model_points(m) for k, m in models.items()}
     res["symmetry"] = _symmetry_ceiling(test.objects, test_frames, pts)
     summary = training_summary(train, views=cfg.views, stride=cfg.stride, seed=cfg.seed, mirror=cfg.mirror,
-                               canonical=cfg.canonical, images=len(forest_frames), parts=len(ts))
+                               canonical=cfg.canonical, images=len(forest_frames), parts=len(ts), context=cfg.context)
     max_offset = cfg.max_offset if cfg.max_offset is not None else pipeline.scaled_max_offset(ts, train_frames[0].intrinsics.fx)
     res["max_offset"] = max_offset
     evals = {}
@@ -396,6 +405,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--canonical", action="store_true",
                    help="label the training views of instances that a turn about the vertical axis maps onto "
                         "themselves (isa.privileged.symmetry) with one canonical pose of the turn group")
+    p.add_argument("--context", action="store_true",
+                   help="train the forests on views of each instance standing in a room (other objects, clutter, "
+                        "Kinect noise; floor and walls removed as detection does), not alone")
     p.add_argument("--scenes", type=int, default=0, metavar="N",
                    help="also detect in N procedural rooms of the scene benchmark (isa.scenes) with the forests")
     p.add_argument("--seed", type=int, default=0)
@@ -411,7 +423,7 @@ def config_from_args(a: argparse.Namespace) -> ExperimentConfig:
         linemod=not a.no_linemod, linemod_instances=a.linemod_instances,
         ground_truth_skeletons=a.ground_truth_skeletons, real=a.real, validation=a.validation,
         ssc_tie_tolerance=a.ssc_tie_tolerance, centre=a.centre, mirror=a.mirror, canonical=a.canonical,
-        scenes=a.scenes, seed=a.seed)
+        context=a.context, scenes=a.scenes, seed=a.seed)
 
 
 def main(argv: list[str] | None = None) -> None:

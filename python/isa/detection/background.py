@@ -9,6 +9,12 @@ positives that reach it; with the classes weighted equally,
 counts, ``A``, ``B`` the totals), smoothed towards 0.5 by ``prior`` pseudo-counts. Each vote is
 weighted by its leaf's probability before the modes are found (:func:`isa._core.find_modes`), so
 leaves that floors and walls reach stop piling up hypotheses.
+
+Where the labelled parts come from (:func:`context_foreground`, ``python -m isa.detection.background``):
+views of the training instances standing in rooms (:mod:`isa.scenes.context`: other
+categories beside them, clutter, Kinect noise, floor and walls removed as detection removes
+them), drawn with a seed other than the training views'; every valid pixel on the part grid
+is a part, positive on the instance's visible mask.
 """
 
 from __future__ import annotations
@@ -23,7 +29,8 @@ from isa.camera import Intrinsics
 from isa.detection.shapes import load_npz, save_npz
 from isa.exceptions import DataError, InvalidValueError
 
-__all__ = ["LeafForeground", "fit_leaf_foreground", "depth_mm", "weighted_predict"]
+__all__ = ["LeafForeground", "fit_leaf_foreground", "labelled_parts", "context_foreground", "depth_mm",
+           "weighted_predict", "main"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,7 +92,7 @@ def weighted_predict(forest, fg: LeafForeground | None, depth: np.ndarray, intri
                      power: float = 1.0, **params) -> list[dict]:
     """:meth:`isa.forest.model.Forest.predict` with every vote weighted by ``p(object | leaf) ** power``
     (``fg`` None: the plain votes, through the same path). ``params``: the mode-finding keywords
-    of :func:`isa._core.find_modes` (default: the model's ``predict_defaults``)."""
+    of :func:`isa._core.find_modes` (default: the model's inference defaults, ``Forest.predict_defaults``)."""
     from isa import _core
 
     img = depth_mm(depth)
@@ -106,3 +113,80 @@ def weighted_predict(forest, fg: LeafForeground | None, depth: np.ndarray, intri
         kw.pop(k, None)
     return _core.find_modes(np.ascontiguousarray(pos), np.ascontiguousarray(v["rotation"]),
                             np.ascontiguousarray(w, dtype=np.float32), **kw)
+
+
+def labelled_parts(frames, stride: int = 8) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """uint16 images, parts ``(P, 3)`` [image, u, v] on every valid pixel of the ``stride`` grid
+    (as detection samples them, :func:`isa._core.sample_parts`) and whether each is on the
+    frame's mask, from BOP frames (depth in metres, mask)."""
+    from isa import _core
+
+    images, parts, positive = [], [], []
+    for f in frames:
+        img = depth_mm(f.depth)
+        p = np.asarray(_core.sample_parts([img], stride=stride))
+        if len(p) == 0:
+            continue
+        p[:, 0] = len(images)
+        images.append(img)
+        parts.append(p)
+        positive.append(np.asarray(f.mask, bool)[p[:, 2], p[:, 1]])
+    if not parts:
+        raise DataError("labelled_parts: no valid pixels in the frames")
+    return images, np.concatenate(parts).astype(np.int32), np.concatenate(positive)
+
+
+def context_foreground(forest, objects, category: str, views: int, out_dir: str | Path, seed: int = 1,
+                       stride: int = 8, prior: float = 1.0, progress: bool = True) -> LeafForeground:
+    """Leaf probabilities of ``forest`` from ``views`` in-context views of each of ``objects``
+    (prepared training instances, :func:`isa.scenes.context.render_context_dataset`, rendered into
+    ``out_dir``; resumable), drawn from ``seed``."""
+    from isa.data import bop
+    from isa.scenes.context import render_context_dataset
+
+    render_context_dataset(out_dir, objects, category, views, seed=seed, progress=progress)
+    images, parts, positive = labelled_parts(bop.FrameSequence(out_dir, "train"), stride)
+    return fit_leaf_foreground(forest, images, parts, positive, prior=prior, category=category)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m isa.detection.background MESHES --category C --model C.isa -o C.foreground.npz``:
+    leaf probabilities from in-context views of the model's training instances (the same
+    ``MESHES`` / ``--instances`` / ``--seed`` as ``python -m isa train``)."""
+    import argparse
+
+    from isa import pipeline
+    from isa.exceptions import IsaError
+    from isa.forest.build import training_objects
+    from isa.forest.model import Forest
+
+    ap = argparse.ArgumentParser(prog="python -m isa.detection.background", description=main.__doc__.split("\n")[0])
+    ap.add_argument("meshes", nargs="+", help="the model's training meshes (files, folders, globs or a ModelNet10 root)")
+    ap.add_argument("--category", required=True)
+    ap.add_argument("--model", required=True, type=Path)
+    ap.add_argument("--instances", type=int, help="first N instances (ModelNet: default the paper's count)")
+    ap.add_argument("--views", type=int, default=20, help="in-context views per instance")
+    ap.add_argument("--stride", type=int, default=8, help="part grid (pixels), as at detection")
+    ap.add_argument("--prior", type=float, default=1.0, help="pseudo-parts of each class per leaf")
+    ap.add_argument("--training-seed", type=int, default=0, help="the seed the instances were sized with")
+    ap.add_argument("--seed", type=int, default=1, help="the rooms' seed (not the training views')")
+    ap.add_argument("--renders", type=Path, required=True, help="folder for the rendered views (resumable)")
+    ap.add_argument("-o", "--out", required=True, type=Path, help="<category>.foreground.npz to write")
+    a = ap.parse_args(argv)
+    try:
+        if not a.model.is_file():
+            raise DataError(f"--model: {a.model} not found")
+        forest = Forest.load(a.model)
+        objs = training_objects(a.meshes, a.category, instances=a.instances, seed=a.training_seed)
+        prepared = pipeline.prepare_category(a.category, objs, centre=forest.metadata.get("centre"))
+        fg = context_foreground(forest, prepared.objects, a.category, a.views, a.renders, seed=a.seed,
+                                stride=a.stride, prior=a.prior)
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        fg.save(a.out)
+    except IsaError as exc:
+        ap.exit(2, f"error: {exc}\n")
+    print(f"{a.out}: {fg.n_positive} parts on {a.category} instances, {fg.n_negative} off")
+
+
+if __name__ == "__main__":
+    main()

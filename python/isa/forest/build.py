@@ -255,11 +255,15 @@ def model_metadata(prepared, quality: str, training: dict) -> dict:
 
 def training_summary(prepared, *, views: int, stride: int, seed: int, mirror: bool, canonical: bool,
                      images: int, parts: int, height: float | None = None, up: str = "z",
-                     template: str = "procedural") -> dict:
-    """The ``training`` entry of a model's metadata."""
-    return {"instances": [o.source for o in prepared.objects], "views": views, "stride": stride, "seed": seed,
-            "mirror": mirror, "canonical": canonical, "images": images, "parts": parts, "height": height,
-            "up": up, "template": template}
+                     template: str = "procedural", context: bool = False) -> dict:
+    """The ``training`` entry of a model's metadata (``context`` only when set, so one-class
+    models keep their bytes)."""
+    out = {"instances": [o.source for o in prepared.objects], "views": views, "stride": stride, "seed": seed,
+           "mirror": mirror, "canonical": canonical, "images": images, "parts": parts, "height": height,
+           "up": up, "template": template}
+    if context:
+        out["context"] = True
+    return out
 
 
 # -- the whole thing -------------------------------------------------------------------------
@@ -281,8 +285,9 @@ def train_category(
     views: int = PAPER_VIEWS, stride: int = DEFAULT_STRIDE, quality: str = "Q1+Q2+Q3", trees: int = 10,
     depth: int = ForestParams.max_depth, candidates: int = ForestParams.n_candidates, mirror: bool = False,
     canonical: bool = False, height: float | None = None, up: str = "z", centre: str | None = None, seed: int = 0,
-    cache: str | os.PathLike | None = None, progress: bool = True, shards: str | os.PathLike | None = None,
-    cluster: bool = False, scheduler: str | None = None, workers: int | None = None,
+    cache: str | os.PathLike | None = None, context: bool = False, progress: bool = True,
+    shards: str | os.PathLike | None = None, cluster: bool = False, scheduler: str | None = None,
+    workers: int | None = None,
 ) -> Path:
     """Train a ``category`` model on ``meshes`` (files, folders, globs or a ModelNet10 root; or
     ``procedural=N``) and write it to ``out``; returns ``out``.
@@ -293,7 +298,9 @@ def train_category(
     instance (required for categories without a size table); ``up``: the files' up axis, "z"
     (ModelNet's) or "y" (glTF's, front +z). ``centre``: the origin rule
     (:data:`isa.privileged.ssc.CENTRES`; default the category's, the centre of mass for others).
-    ``cache``: folder that makes reruns skip finished work (module docstring).
+    ``cache``: folder that makes reruns skip finished work (module docstring). ``context``: the
+    views show each instance standing in a room with noise, floor and walls removed
+    (:mod:`isa.scenes.context`) instead of alone (the paper's one-class protocol).
 
     ``shards``: a folder for the training set as shards (:mod:`isa.forest.shards`), written as
     annotation goes and trained from without holding the set in memory (the renders go there
@@ -315,7 +322,7 @@ def train_category(
         raise DataError(f"--views and --stride must be positive, got {views} and {stride}")
     params = ForestParams(n_trees=trees, max_depth=depth, n_candidates=candidates, quality=quality, seed=seed)
     _check_output(out)
-    _check_scale(shards, cluster, scheduler, workers, mirror, canonical)
+    _check_scale(shards, cluster, scheduler, workers, mirror, canonical, context)
     cache_dir = Path(cache) if cache is not None else None
     if cache_dir is not None:
         try:
@@ -343,15 +350,20 @@ def train_category(
     out.parent.mkdir(parents=True, exist_ok=True)  # checked writable above; inputs are valid by now
     with tempfile.TemporaryDirectory(prefix="isa-train-", dir=None if cache_dir else out.parent) as tmp:
         base = cache_dir / "renders" if cache_dir is not None else Path(tmp)
-        data = base / f"{category}-{_render_key(prepared.objects, views, seed)}"
-        render_dataset(data, prepared.objects, split="train", n_views=views, view_seed=seed, progress=progress)
+        data = base / f"{category}-{'context-' if context else ''}{_render_key(prepared.objects, views, seed)}"
+        if context:
+            from isa.scenes.context import render_context_dataset
+
+            render_context_dataset(data, prepared.objects, category, views, seed=seed, progress=progress)
+        else:
+            render_dataset(data, prepared.objects, split="train", n_views=views, view_seed=seed, progress=progress)
         frames = pipeline.load_frames(data, "train", lazy=True)
         forest_frames, _ = augmented_frames(frames, prepared.objects, mirror, canonical)
-        ts = pipeline.training_set(forest_frames, prepared.skeletons, stride=stride, progress=progress)
+        ts = pipeline.training_set(forest_frames, prepared.skeletons, stride=stride, progress=progress, context=context)
         params = pipeline.scaled_params(params, ts, frames[0].intrinsics.fx)
         summary = training_summary(prepared, views=views, stride=stride, seed=seed, mirror=mirror,
                                    canonical=canonical, images=len(forest_frames), parts=len(ts), height=height,
-                                   up=up, template=template_source)
+                                   up=up, template=template_source, context=context)
     forest = pipeline.train_forest(ts, params, metadata=model_metadata(prepared, params.quality, summary),
                                    progress=progress)
     forest.save(out)  # atomic: a temporary file renamed over ``out``
@@ -359,15 +371,15 @@ def train_category(
 
 
 def _check_scale(shards, cluster: bool, scheduler: str | None, workers: int | None, mirror: bool,
-                 canonical: bool) -> None:
+                 canonical: bool, context: bool = False) -> None:
     if (cluster or scheduler is not None or workers is not None) and shards is None:
         raise DataError("--cluster / --scheduler / --workers need --shards DIR (the folder the workers share)")
     if (scheduler is not None or workers is not None) and not cluster:
         raise DataError("--scheduler and --workers apply with --cluster")
     if scheduler is not None and workers is not None:
         raise DataError("--workers sizes the local cluster; an existing one (--scheduler) has its own")
-    if shards is not None and (mirror or canonical):
-        raise DataError("--mirror / --canonical are not supported with --shards yet")
+    if shards is not None and (mirror or canonical or context):
+        raise DataError("--mirror / --canonical / --context are not supported with --shards yet")
 
 
 def _train_sharded(prepared, shards: Path, cache_dir: Path | None, params: ForestParams, *, views: int, stride: int,
@@ -438,6 +450,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--mirror", action="store_true", help="also train on flipped views of mirror-symmetric instances")
     p.add_argument("--canonical", action="store_true", help="label turn-symmetric instances with one canonical pose")
     p.add_argument("--centre", choices=CENTRES, help="object-frame origin (default: the category's; com for others)")
+    p.add_argument("--context", action="store_true",
+                   help="views of each instance standing in a room (noise on, floor and walls removed), not alone")
     p.add_argument("--cache", type=Path, help="folder of skeletons and renders kept between runs (rerun skips them)")
     p.add_argument("--shards", type=Path, metavar="DIR",
                    help="write the training set as shards in DIR and train from them (sets larger than memory)")
@@ -457,8 +471,8 @@ def main(argv: list[str] | None = None) -> None:
         path = train_category(a.meshes or None, a.category, a.out, procedural=a.procedural, instances=a.instances,
                               views=a.views, stride=a.stride, quality=a.quality, trees=a.trees, depth=a.depth,
                               candidates=a.candidates, mirror=a.mirror, canonical=a.canonical, height=a.height, up=a.up,
-                              centre=a.centre, seed=a.seed, cache=a.cache, progress=not a.quiet, shards=a.shards,
-                              cluster=a.cluster, scheduler=a.scheduler, workers=a.workers)
+                              centre=a.centre, seed=a.seed, cache=a.cache, context=a.context, progress=not a.quiet,
+                              shards=a.shards, cluster=a.cluster, scheduler=a.scheduler, workers=a.workers)
     except IsaError as exc:
         ap.exit(2, f"error: {exc}\n")
     print(f"model: {path}")

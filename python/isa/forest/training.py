@@ -28,12 +28,13 @@ def load_frames(root: Path, split: str, lazy: bool = False) -> list[bop.BopFrame
 
 
 def training_set(frames: Sequence[bop.BopFrame], skeletons: dict[int, SkeletonGraph], stride: int = 4,
-                 progress: bool = True) -> TrainingSet:
+                 progress: bool = True, context: bool = False) -> TrainingSet:
     """Annotated parts of rendered training frames (the forest's input); the frames are read
-    once, one at a time, so a lazy sequence keeps only their crops in memory."""
+    once, one at a time, so a lazy sequence keeps only their crops in memory. ``context``: views
+    in a room (:mod:`isa.scenes.context`), whose depth around the object is kept."""
     bar = tqdm(frames, desc="annotate", unit="frame", disable=not progress, leave=False)
     fs = (Frame(f.depth, f.mask, f.R, f.t, f.intrinsics, skeletons[f.obj_id]) for f in bar)
-    return build_training_set(fs, stride=stride)
+    return build_training_set(fs, stride=stride, context=context)
 
 
 #: Scale-aware settings, as fractions of the objects' diameter (estimated from the training parts,

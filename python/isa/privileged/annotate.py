@@ -201,6 +201,7 @@ def build_training_set(
     margin: int = 8,
     nodes: Sequence[int] | None = None,
     links: np.ndarray | None = None,
+    context: bool = False,
 ) -> TrainingSet:
     """Depth crops and per-part targets from rendered frames (the arrays for the forest).
 
@@ -214,6 +215,10 @@ def build_training_set(
     ``frames`` is read once, in order, and only each frame's crop is kept, so it may be a
     generator over views read from disk (:class:`isa.data.bop.FrameSequence`). Every frame's skeleton
     must have the same nodes count and links (one category template).
+
+    ``context``: views of the object in a room (:mod:`isa.scenes.context`): the depth around the
+    mask is kept and the crop is the whole image, so probes that leave the object read the room;
+    the parts are still the mask's pixels only.
     """
     if int(stride) < 1:
         raise InvalidValueError(f"stride: must be >= 1, got {stride}")
@@ -263,19 +268,23 @@ def build_training_set(
             crop_list.append((0, 0))
             continue
         h, w = depth.shape
-        v0, v1 = max(0, rows[0] - margin), min(h, rows[-1] + 1 + margin)
-        u0, u1 = max(0, cols[0] - margin), min(w, cols[-1] + 1 + margin)
+        if context:
+            v0, v1, u0, u1 = 0, h, 0, w
+        else:
+            v0, v1 = max(0, rows[0] - margin), min(h, rows[-1] + 1 + margin)
+            u0, u1 = max(0, cols[0] - margin), min(w, cols[-1] + 1 + margin)
         crop_list.append((u0, v0))
         d = depth[v0:v1, u0:u1]
-        fg = mask[v0:v1, u0:u1] & (d > 0) & np.isfinite(d)
-        mm = metres_to_mm(np.where(fg, d, 0))
+        seen = (d > 0) & np.isfinite(d)
+        fg = mask[v0:v1, u0:u1] & seen
+        mm = metres_to_mm(np.where(seen if context else fg, d, 0))
         crop = np.ascontiguousarray(np.clip(mm, 0, 65535).astype(np.uint16))
         images.append(crop)
         # Grid in full-image coordinates: the first grid row/column at or after the crop origin.
         gv = np.arange(-(-v0 // stride) * stride, v1, stride)
         gu = np.arange(-(-u0 // stride) * stride, u1, stride)
         sub = crop[np.ix_(gv - v0, gu - u0)]
-        vv, uu = np.nonzero(sub > 0)
+        vv, uu = np.nonzero((sub > 0) & fg[np.ix_(gv - v0, gu - u0)])
         per_u.append(gu[uu])
         per_v.append(gv[vv])
         per_z.append(sub[vv, uu].astype(np.float64) / 1000.0)  # the depth the core will see

@@ -11,6 +11,7 @@ scaled to real size and centred on the category's origin, as training has them.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -236,19 +237,25 @@ def _table_top_items(rng, inst: Instance, n: int) -> list[trimesh.Trimesh]:
 
 
 def make_room(rng: np.random.Generator, source, n_instances: tuple[int, int] = (1, 6),
-              params: RoomParams = RoomParams()) -> Room:
+              params: RoomParams = RoomParams(), include: Sequence[ObjectSpec] = ()) -> Room:
     """A room drawn from ``rng`` with ``n_instances`` (inclusive range) instances from ``source``
-    (:class:`isa.scenes.sources.MeshSource`), packed into a cluster, plus clutter."""
+    (:class:`isa.scenes.sources.MeshSource`), packed into a cluster, plus clutter. ``include``:
+    instances placed first (before the drawn ones, so the cluster grows around them; with
+    ``n_instances`` lo = 0 they may stand alone); they come first in ``Room.instances`` when placed."""
     lo, hi = n_instances
-    if not (1 <= lo <= hi):
-        raise InvalidParameterError(f"n_instances: need 1 <= lo <= hi, got {n_instances}")
+    if not (0 <= lo <= hi) or (lo == 0 and not include):
+        raise InvalidParameterError(f"n_instances: need 1 <= lo <= hi (lo 0 with include), got {n_instances}")
     size = (float(rng.uniform(*params.width)), float(rng.uniform(*params.depth)))
     walls, static = _walls(rng, size, int(rng.integers(params.walls[0], params.walls[1] + 1)))
     taken: list[Polygon] = []
     instances: list[Instance] = []
-    for _ in range(int(rng.integers(lo, hi + 1))):
-        cat = source.categories[rng.integers(len(source.categories))]
-        obj = source.instance(cat, int(rng.integers(source.count(cat))))
+    drawn = int(rng.integers(lo, hi + 1))
+    for k in range(len(include) + drawn):
+        if k < len(include):
+            obj = include[k]
+        else:
+            cat = source.categories[rng.integers(len(source.categories))]
+            obj = source.instance(cat, int(rng.integers(source.count(cat))))
         yaw = rng.uniform(0, 2 * np.pi)
         R = rot_z(yaw)
         base = affinity.rotate(_hull_xy(obj.mesh), yaw, origin=(0, 0), use_radians=True)
