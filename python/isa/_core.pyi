@@ -6,12 +6,53 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from typing import Any
+from types import ModuleType
+from typing import Any, final
 
 import numpy as np
 import numpy.typing as npt
 
+# The module's names (pyo3 lists every addition in the runtime __all__; stubtest compares).
+__all__ = [
+    "BACKGROUND_MM",
+    "DETECT_DEFAULTS",
+    "FOREST_DEFAULTS",
+    "Forest",
+    "Hypothesis",
+    "InvalidInputError",
+    "InvalidParameterError",
+    "InvalidTypeError",
+    "IsaError",
+    "IsaFileNotFoundError",
+    "IsaIOError",
+    "IsaIsADirectoryError",
+    "IsaPermissionError",
+    "MODEL_FORMAT_VERSION",
+    "ModelFormatError",
+    "PREDICT_DEFAULTS",
+    "SHAPES_FORMAT_VERSION",
+    "SHARD_MANIFEST",
+    "ShapeLibrary",
+    "ShardTrainer",
+    "TRAINSET_FORMAT_VERSION",
+    "__version__",
+    "_testing",
+    "default_predict_params",
+    "depth_features",
+    "detect",
+    "find_modes",
+    "find_planes",
+    "nms_across",
+    "read_trainset",
+    "refine_pose",
+    "sample_parts",
+    "verify_pose",
+    "write_shard_manifest",
+    "write_trainset",
+]
 __version__: str
+#: Test hooks (criterion terms, split search): not public API.
+_testing: ModuleType
 #: Version of the model-file format this build writes (and the newest it reads).
 MODEL_FORMAT_VERSION: int
 #: Depth (mm) a feature probe reads outside the image or on missing depth.
@@ -49,6 +90,7 @@ class IsaPermissionError(IsaIOError, PermissionError):
 class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
     """A path names a directory where isa needs a file."""
 
+@final
 class Hypothesis:
     """A ranked 6D pose, ``X_cam = R @ X_obj + t``. Fields are attributes and also items under
     the same names (``h["R"]``, ``h.get("score")``, ``dict(h)``), as when hypotheses were dicts;
@@ -73,9 +115,9 @@ class Hypothesis:
     def position_score(self) -> float: ...
     @property
     def position_support(self) -> int: ...
-    def __getitem__(self, key: str) -> Any: ...
+    def __getitem__(self, key: str, /) -> Any: ...
     def get(self, key: str, default: Any = None) -> Any: ...
-    def __contains__(self, key: str) -> bool: ...
+    def __contains__(self, key: str, /) -> bool: ...
     def __len__(self) -> int: ...
     def __iter__(self) -> Iterator[str]: ...
     def keys(self) -> list[str]: ...
@@ -84,6 +126,7 @@ class Hypothesis:
     def to_dict(self) -> dict[str, Any]:
         """The fields as a plain dict."""
 
+@final
 class Forest:
     """The ISA forest (Rust). Hyper-parameters are keyword arguments named as the fields of
     ``isa.forest.ForestParams`` (unknown names raise ``InvalidParameterError``).
@@ -92,7 +135,7 @@ class Forest:
     speed: the same parameters, seed and data give byte-identical models.
     """
 
-    def __init__(self, *, n_threads: int | None = None, **params: Any) -> None: ...
+    def __new__(cls, *, n_threads: int | None = None, **params: Any) -> Forest: ...
     def fit(
         self,
         images: list[npt.NDArray[np.uint16]],
@@ -101,7 +144,7 @@ class Forest:
         rotations: npt.NDArray[np.float32],
         link_angles: npt.NDArray[np.float32] | None = None,
         node_offsets: npt.NDArray[np.float32] | None = None,
-        metadata: str = "{}",
+        metadata: str = ...,
         on_tree: Callable[[int], object] | None = None,
         predict_defaults: dict[str, Any] | None = None,
     ) -> None:
@@ -114,7 +157,7 @@ class Forest:
     def fit_shards(
         self,
         shards: str | os.PathLike[str],
-        metadata: str = "{}",
+        metadata: str = ...,
         on_tree: Callable[[int], object] | None = None,
         predict_defaults: dict[str, Any] | None = None,
     ) -> None:
@@ -124,7 +167,7 @@ class Forest:
         self,
         trees: list[bytes],
         shards: str | os.PathLike[str],
-        metadata: str = "{}",
+        metadata: str = ...,
         predict_defaults: dict[str, Any] | None = None,
     ) -> None:
         """The forest from ``ShardTrainer.fit_tree(t)`` of every tree, in order, on ``shards``
@@ -262,11 +305,12 @@ def write_shard_manifest(dir: str | os.PathLike[str], files: list[str]) -> str:
     """Writes ``dir/manifest.json`` for the shards ``files`` (in training order), each read and
     validated; returns the manifest JSON. Atomic."""
 
+@final
 class ShardTrainer:
     """A shard folder opened and prepared for fitting single trees of the forest of ``params``
     (keyword arguments as ``Forest``'s); one per cluster worker."""
 
-    def __init__(self, shards: str | os.PathLike[str], *, n_threads: int | None = None, **params: Any) -> None: ...
+    def __new__(cls, shards: str | os.PathLike[str], *, n_threads: int | None = None, **params: Any) -> ShardTrainer: ...
     def fit_tree(self, t: int) -> bytes:
         """Tree ``t``'s bytes, for ``Forest.assemble``."""
     @property
@@ -279,6 +323,7 @@ DETECT_DEFAULTS: dict[str, Any]
 ``refine``), which ``isa.detection``'s parameter classes mirror."""
 SHAPES_FORMAT_VERSION: int
 
+@final
 class ShapeLibrary:
     """A category's shape library: surface samples (S, N, 3) float32 and normals of its training
     shapes (object frame), spacing (S,), bounds (S, 2, 3), names, size range."""
