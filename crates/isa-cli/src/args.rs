@@ -225,7 +225,10 @@ pub struct PredictFlags {
     #[arg(long, help = model_dflt("Parts on every STRIDE-th pixel in u and v", pp().stride))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stride: Option<usize>,
-    #[arg(long, value_parser = finite::<f32>, help = model_dflt("Ignore pixels nearer than this, metres", pp().min_depth))]
+    // allow_hyphen_values: a value such as -inf reaches the finite check (and its message)
+    // instead of reading as short flags.
+    #[arg(long, allow_hyphen_values = true, value_parser = finite::<f32>,
+          help = model_dflt("Ignore pixels nearer than this, metres", pp().min_depth))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub min_depth: Option<f32>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
@@ -323,7 +326,7 @@ pub struct DetectArgs {
     pub camera: Option<PathBuf>,
     /// Gravity in camera coordinates (OpenCV: x right, y down, z forward), any length, e.g.
     /// 0,1,0 for a level camera [default: the floor's normal, else the votes' up axis].
-    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',', allow_hyphen_values = true)]
     pub gravity: Option<Vec<f64>>,
     /// Folder of shape libraries `<category>.shapes.isl` [default: `<model>.shapes.isl` beside
     /// each model].
