@@ -304,8 +304,9 @@ pub struct DetectArgs {
     #[arg(short, long, value_name = "JSON")]
     pub camera: Option<PathBuf>,
     /// Gravity in camera coordinates (OpenCV: x right, y down, z forward), any length, e.g.
-    /// 0,1,0 for a level camera [default: the floor's normal, else the votes' up axis].
-    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    /// 0,1,0 for a level camera (write --gravity=-0.1,0.9,0.2 when the first is negative)
+    /// [default: the floor's normal, else the votes' up axis].
+    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',')]
     pub gravity: Option<Vec<f64>>,
     /// Folder of shape libraries `<category>.shapes.isl` [default: `<model>.shapes.isl` beside
     /// each model].

@@ -108,17 +108,26 @@ pub fn yaw_of(m: &Matrix3<f64>) -> f64 {
     (m[(1, 0)] - m[(0, 1)]).atan2(m[(0, 0)] + m[(1, 1)])
 }
 
-/// `np.percentile(values, q)` (linear interpolation); `values` is sorted in place.
+/// `np.percentile(values, q)` (linear interpolation), by selection (`values` is reordered).
 pub(crate) fn percentile(values: &mut [f64], q: f64) -> f64 {
-    values.sort_unstable_by(f64::total_cmp);
     let n = values.len();
     if n == 0 {
         return f64::NAN;
     }
     let pos = q / 100.0 * (n - 1) as f64;
-    let lo = pos.floor() as usize;
-    let hi = (lo + 1).min(n - 1);
-    values[lo] + (values[hi] - values[lo]) * (pos - lo as f64)
+    let lo = (pos.floor() as usize).min(n - 1);
+    let (_, &mut a, right) = values.select_nth_unstable_by(lo, f64::total_cmp);
+    let b = right.iter().copied().fold(f64::INFINITY, f64::min);
+    if b.is_finite() {
+        a + (b - a) * (pos - lo as f64)
+    } else {
+        a
+    }
+}
+
+/// `np.median(values)`, by selection (`values` is reordered).
+pub(crate) fn median(values: &mut [f64]) -> f64 {
+    percentile(values, 50.0)
 }
 
 /// A row-major 3x3 array as a matrix.
