@@ -79,7 +79,6 @@ def test_core_detect_matches_the_numpy_path_on_a_rendered_room(monkeypatch):
     and the numpy path, given the same planes, give the same ranked detections."""
     import detect_reference.multi as ref_multi
     import detect_reference.planes as ref_planes
-
     from isa.detection import detect, train_detector
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel
