@@ -159,12 +159,12 @@ impl PyShapeLibrary {
     #[getter]
     fn points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f32>>> {
         let flat: Vec<f32> = self.lib.points.iter().flatten().copied().collect();
-        Ok(PyArray1::from_vec(py, flat).reshape([self.lib.len(), self.lib.n_points, 3])?)
+        PyArray1::from_vec(py, flat).reshape([self.lib.len(), self.lib.n_points, 3])
     }
     #[getter]
     fn normals<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f32>>> {
         let flat: Vec<f32> = self.lib.normals.iter().flatten().copied().collect();
-        Ok(PyArray1::from_vec(py, flat).reshape([self.lib.len(), self.lib.n_points, 3])?)
+        PyArray1::from_vec(py, flat).reshape([self.lib.len(), self.lib.n_points, 3])
     }
     #[getter]
     fn spacing<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
@@ -180,7 +180,7 @@ impl PyShapeLibrary {
             .flatten()
             .copied()
             .collect();
-        Ok(PyArray1::from_vec(py, flat).reshape([self.lib.len(), 2, 3])?)
+        PyArray1::from_vec(py, flat).reshape([self.lib.len(), 2, 3])
     }
     fn __len__(&self) -> usize {
         self.lib.len()
