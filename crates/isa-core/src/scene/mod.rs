@@ -130,6 +130,18 @@ pub(crate) fn median(values: &mut [f64]) -> f64 {
     percentile(values, 50.0)
 }
 
+/// `x.floor() as i64` without a libm call (x86-64's baseline has no rounding instruction):
+/// exact for |x| < 2^53.
+#[inline]
+pub(crate) fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x {
+        i - 1
+    } else {
+        i
+    }
+}
+
 /// A row-major 3x3 array as a matrix.
 pub fn mat(a: &[[f64; 3]; 3]) -> Matrix3<f64> {
     Matrix3::from_fn(|i, j| a[i][j])
@@ -138,4 +150,20 @@ pub fn mat(a: &[[f64; 3]; 3]) -> Matrix3<f64> {
 /// A matrix as a row-major 3x3 array.
 pub fn rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
     [0, 1, 2].map(|i| [0, 1, 2].map(|j| m[(i, j)]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn floor_i64_is_the_floor() {
+        for x in [-3.5, -3.0, -2.999, -0.5, -1e-12, -0.0, 0.0, 1e-12, 0.5, 2.0, 2.999, 1e15 + 0.5, -1e15 - 0.5] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+        let mut v = vec![5.0, 1.0, 4.0, 2.0, 3.0];
+        assert_eq!(percentile(&mut v, 50.0), 3.0);
+        assert_eq!(percentile(&mut v, 12.5), 1.5); // numpy: linear between 1 and 2
+        assert_eq!(median(&mut vec![4.0, 1.0, 3.0, 2.0]), 2.5);
+    }
 }

@@ -122,11 +122,11 @@ fn largest_patch(along: &[f64], z: &[f64], cell: f64, min_points: usize) -> Vec<
     let zmin = z.iter().copied().fold(f64::INFINITY, f64::min);
     let a: Vec<usize> = along
         .iter()
-        .map(|x| ((x - amin) / cell).floor() as usize)
+        .map(|x| ((x - amin) / cell) as usize) // >= 0: truncation is the floor
         .collect();
     let b: Vec<usize> = z
         .iter()
-        .map(|x| ((x - zmin) / cell).floor() as usize)
+        .map(|x| ((x - zmin) / cell) as usize)
         .collect();
     let (na, nb) = (a.iter().max().unwrap() + 1, b.iter().max().unwrap() + 1);
     let mut counts = vec![0usize; na * nb];

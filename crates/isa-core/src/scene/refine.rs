@@ -7,7 +7,7 @@
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 
 use super::verify::visible_points;
-use super::{rot_z, yaw_of, Camera, Frame};
+use super::{floor_i64, rot_z, yaw_of, Camera, Frame};
 use crate::params::RefineParams;
 
 /// The refined pose (object to camera), the RMS distance of the last pairs and their count, the
@@ -97,7 +97,7 @@ impl<'a> RadiusGrid<'a> {
     }
 
     fn key(&self, p: &Vector3<f64>) -> [i64; 3] {
-        [0, 1, 2].map(|k| ((p[k] - self.lo[k]) / self.cell).floor() as i64)
+        [0, 1, 2].map(|k| floor_i64((p[k] - self.lo[k]) / self.cell))
     }
 
     fn flat(&self, k: [i64; 3]) -> Option<usize> {

@@ -10,7 +10,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{Camera, Frame};
+use super::{floor_i64, Camera, Frame};
 use crate::params::VerifyParams;
 
 /// Side of the comparison grid around each cell's pixel.
@@ -56,8 +56,8 @@ pub fn visible_points(
         if z <= 0.05 {
             continue;
         }
-        let u = (cam.k.fx * p.x / z + cam.k.cx + 0.5).floor() as i64;
-        let v = (cam.k.fy * p.y / z + cam.k.cy + 0.5).floor() as i64;
+        let u = floor_i64(cam.k.fx * p.x / z + cam.k.cx + 0.5);
+        let v = floor_i64(cam.k.fy * p.y / z + cam.k.cy + 0.5);
         if u < -mu || u >= w + mu || v < -mv || v >= h + mv {
             continue;
         }
