@@ -161,9 +161,9 @@ mod tests {
         for x in [-3.5, -3.0, -2.999, -0.5, -1e-12, -0.0, 0.0, 1e-12, 0.5, 2.0, 2.999, 1e15 + 0.5, -1e15 - 0.5] {
             assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
         }
-        let mut v = vec![5.0, 1.0, 4.0, 2.0, 3.0];
+        let mut v = [5.0, 1.0, 4.0, 2.0, 3.0];
         assert_eq!(percentile(&mut v, 50.0), 3.0);
         assert_eq!(percentile(&mut v, 12.5), 1.5); // numpy: linear between 1 and 2
-        assert_eq!(median(&mut vec![4.0, 1.0, 3.0, 2.0]), 2.5);
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
     }
 }
