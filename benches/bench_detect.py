@@ -65,16 +65,15 @@ def main() -> int:
         models.append(load_model(path, shapes=_shapes(a.shapes, cat), category=cat))
     frames = _frames(a.scenes, a.frames)
     w, h = frames[0].intrinsics.width, frames[0].intrinsics.height
-    RP = numpy_path.DetectParams
     pipelines = {
-        "no verification": (DetectParams(verify=None, refine=None), RP(verify=None, refine=None)),
-        "verification + size": (DetectParams(refine=None), RP(refine=None)),
-        "verification + size + refinement": (DetectParams(), RP()),
+        "no verification": DetectParams(verify=None, refine=None),
+        "verification + size": DetectParams(refine=None),
+        "verification + size + refinement": DetectParams(),
     }
     keys = ["gravity", "planes", "votes", "verify", "refine", "total"]
     rows = []
-    for name, (core_p, numpy_p) in pipelines.items():
-        for path, run, params in (("numpy (baseline)", numpy_path.detect, numpy_p), ("core", detect, core_p)):
+    for name, params in pipelines.items():
+        for path, run in (("numpy (baseline)", numpy_path.detect), ("core", detect)):
             per_frame: list[dict[str, float]] = []
             for f in frames:
                 runs = []

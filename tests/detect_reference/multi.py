@@ -1,151 +1,25 @@
-"""Every category in one pass: ``detect(depth, intrinsics, models, gravity=None)``.
-
-1. **Gravity**: given, else the floor's normal, else the votes' tilt (:mod:`isa.detection.gravity`).
-2. **Planes**: floor and walls set to missing depth for the voting (the forests were trained on
-   isolated objects), found once for all categories (:func:`isa.detection.planes.remove_planes`).
-3. **Votes**: each category forest on the cleaned depth gives ranked 6D hypotheses; each is
-   snapped upright (tilt limit), rejected when its bottom is far from the floor, set on it.
-4. **Verification** (:mod:`isa.detection.verify`) on the *raw* depth against each of the category's
-   training shapes; the best shape gives the score (comparable across categories and frames)
-   and the size.
-5. **Refinement** (:mod:`isa.detection.refine`) of the best hypotheses: upright ICP with the best shape,
-   then verified again; kept when the score does not drop.
-6. **NMS across categories**: one ranked list; a box overlapping a better one (3D IoU over
-   ``nms_iou``, or a smaller box with over ``nms_overlap`` of its volume inside the better one)
-   is dropped, whatever its category, since a place holds one object.
-"""
+"""The one-pass pipeline in numpy (the reference of ``isa._core.detect``; the steps in
+``isa.detection.multi``), with its own planes, verification and refinement."""
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any, Mapping, Sequence
+from dataclasses import replace
+from typing import Sequence
 
 import numpy as np
 
-from detect_reference.refine import RefineParams, refine_pose, upright_points
-from detect_reference.verify import DepthEvidence, VerifyParams, verify_pose
+from detect_reference.refine import refine_pose
+from detect_reference.verify import DepthEvidence, verify_pose
 from isa.camera import Intrinsics
-from isa.detection.gravity import GravityEstimate, estimate_gravity
+from isa.detection.gravity import estimate_gravity
+from isa.detection.multi import CategoryModel, DetectParams, DetectResult, SceneDetection, _models, _to_metres
+from isa.detection.refine import upright_points
 from isa.detection.shapes import ShapeLibrary
-from isa.evaluation.boxes3d import Box3D, box_from_pose, footprint_intersection_area, iou_3d, rot_z
-from isa.exceptions import DataError, InvalidValueError
-
-__all__ = ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
-           "nms_across", "write_bop_csv"]
-
-
-@dataclass(frozen=True, eq=False)
-class CategoryModel:
-    """A category's forest, its box (size and origin offset, :class:`isa.detection.CategoryBox`),
-    its shape library (None: no verification, the forest's score and box are used) and its leaf
-    foreground probabilities (:mod:`isa.detection.background`; None: every vote counts fully)."""
-
-    category: str
-    forest: Any
-    box: Any
-    shapes: ShapeLibrary | None = None
-    foreground: Any = None
-
-
-def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None,
-               category: str | None = None, foreground: str | Path | None = None) -> CategoryModel:
-    """A :class:`CategoryModel` from a model file; ``shapes`` a library or its ``.npz`` (default:
-    ``<model>.shapes.npz`` beside the model when it exists); ``foreground`` likewise
-    (``<model>.foreground.npz``)."""
-    from isa.detection.background import LeafForeground
-    from isa.detection.category_boxes import model_box
-    from isa.forest.model import Forest
-
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: model file not found")
-    forest = Forest.load(path)
-    box = model_box(forest, str(path))
-    if shapes is None and path.with_suffix(".shapes.npz").is_file():
-        shapes = path.with_suffix(".shapes.npz")
-    if shapes is not None and not isinstance(shapes, ShapeLibrary):
-        shapes = ShapeLibrary.load(shapes)
-    if foreground is None and path.with_suffix(".foreground.npz").is_file():
-        foreground = path.with_suffix(".foreground.npz")
-    if foreground is not None and not isinstance(foreground, LeafForeground):
-        foreground = LeafForeground.load(foreground)
-    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes, foreground)
-
-
-@dataclass(frozen=True)
-class DetectParams:
-    """``stride``, ``max_hypotheses`` go to each forest's voting; ``max_tilt_deg`` rejects
-    hypotheses tilted further from up; ``floor_gap`` rejects those whose bottom is further from
-    the found floor (and the rest are set on it); ``verify`` / ``refine`` None switch the steps
-    off; ``size_top`` hypotheses per category get their size fitted (per-axis scale of their
-    ``size_shapes`` best shapes, factors ``size_steps``; 0: training sizes only); the shapes are
-    screened and sized on their first ``quick_points`` samples (None: all), the final score uses all;
-    ``forest_weight`` adds that times the log of the forest's score to a verified score;
-    ``refine_top`` hypotheses per category are refined; ``turns`` > 1 also verifies each
-    hypothesis turned by multiples of 360 / ``turns`` degrees about gravity (the forest's front and
-    back are the easiest to confuse) and keeps the best; ``nms_iou`` / ``nms_overlap`` the
-    cross-category suppression; ``max_detections`` per frame; ``min_score`` drops weaker ones."""
-
-    stride: int = 4
-    max_hypotheses: int = 20
-    max_tilt_deg: float | None = 30.0
-    remove_planes: bool = True
-    floor_gap: float | None = 0.3
-    verify: VerifyParams | None = field(default_factory=VerifyParams)
-    refine: RefineParams | None = field(default_factory=RefineParams)
-    refine_top: int = 5
-    turns: int = 1
-    size_top: int = 8
-    size_shapes: int = 3
-    size_steps: tuple[float, ...] = (0.85, 1.15)
-    quick_points: int | None = 1000
-    forest_weight: float = 0.05
-    nms_iou: float = 0.25
-    nms_overlap: float = 0.6
-    max_detections: int = 20
-    min_score: float = -math.inf
-    predict: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True, eq=False)
-class SceneDetection:
-    """One detected object: ``category``; pose ``R`` (3, 3), ``t`` (3,) metres (object to camera,
-    ``t`` the category's origin); ``size`` (3,) its extents along its own x, y, z; ``box_centre``
-    (3,) that box's centre in the object frame; ``score`` (verification score when shapes are
-    given, else the forest's); ``support`` the votes behind it; ``meta`` (forest score, shape,
-    refinement)."""
-
-    category: str
-    R: np.ndarray
-    t: np.ndarray
-    size: np.ndarray
-    box_centre: np.ndarray
-    score: float
-    support: int
-    meta: dict = field(default_factory=dict)
-
-    def box(self, R_gravity: np.ndarray) -> Box3D:
-        """The gravity-aligned box in the upright frame."""
-        return box_from_pose(self.R, self.t, self.size, -self.box_centre, R_gravity, self.category, self.score)
-
-    def to_dict(self) -> dict:
-        return {"category": self.category, "R": np.asarray(self.R).tolist(), "t": np.asarray(self.t).tolist(),
-                "size": np.asarray(self.size).tolist(), "box_centre": np.asarray(self.box_centre).tolist(),
-                "score": float(self.score), "support": int(self.support),
-                "meta": {k: v for k, v in self.meta.items() if isinstance(v, (int, float, str, bool, type(None)))}}
-
-
-@dataclass(eq=False)
-class DetectResult:
-    """``detections`` best first; ``gravity`` the rotation used and its source; ``seconds`` per step."""
-
-    detections: list[SceneDetection]
-    gravity: GravityEstimate
-    floor_height: float | None
-    seconds: dict[str, float]
+from isa.detection.verify import VerifyParams
+from isa.evaluation.boxes3d import Box3D, footprint_intersection_area, iou_3d, rot_z
+from isa.exceptions import InvalidValueError
 
 
 def _overlap(a: Box3D, b: Box3D) -> tuple[float, float]:
@@ -179,33 +53,6 @@ def nms_across(boxes: Sequence[Box3D], iou: float = 0.25, overlap: float = 0.6) 
         if ok:
             kept.append(i)
     return kept
-
-
-def _to_metres(depth: np.ndarray) -> np.ndarray:
-    depth = np.asarray(depth)
-    if depth.ndim != 2:
-        raise InvalidValueError(f"detect: depth must be (H, W), got {depth.shape}")
-    if depth.dtype == np.uint16:
-        return depth.astype(np.float32) / 1000.0
-    return np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-
-
-def _models(models) -> list[CategoryModel]:
-    if isinstance(models, CategoryModel):
-        return [models]
-    if isinstance(models, Mapping):
-        out = []
-        for cat, m in models.items():
-            m = load_model(m, category=cat) if isinstance(m, (str, Path)) else m
-            out.append(m if isinstance(m, CategoryModel) else CategoryModel(cat, m, _box(m, cat)))
-        return out
-    return [load_model(m) if isinstance(m, (str, Path)) else m for m in models]
-
-
-def _box(forest, cat):
-    from isa.detection.category_boxes import model_box
-
-    return model_box(forest, f"{cat} model")
 
 
 def _candidates(model: CategoryModel, hyps, Rg, floor, params: DetectParams) -> list[dict]:
@@ -382,7 +229,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
         for c in cands:
             if use_shapes and params.forest_weight:
                 c["score"] += params.forest_weight * math.log(max(c["forest_score"], 1e-6))
-            if c["score"] < params.min_score:
+            if params.min_score is not None and c["score"] < params.min_score:
                 continue
             if c["shape"] is not None:
                 size, centre = m.shapes.sizes[c["shape"]] * c["scale"], m.shapes.centres[c["shape"]] * c["scale"]
@@ -397,21 +244,3 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     keep = nms_across(boxes, params.nms_iou, params.nms_overlap)[: params.max_detections]
     secs["verify"] = time.perf_counter() - t0 - t_refine
     return DetectResult([dets[i] for i in keep], grav, floor, secs)
-
-
-def write_bop_csv(path: str | Path, rows: Sequence[tuple[int, int, float, SceneDetection]],
-                  obj_ids: Mapping[str, int]) -> Path:
-    """BOP results CSV (``scene_id,im_id,obj_id,score,R,t,time``; R row-major, t in mm):
-    ``rows`` of (scene_id, im_id, seconds, detection); ``obj_ids`` category -> the obj_id written."""
-    path = Path(path)
-    lines = ["scene_id,im_id,obj_id,score,R,t,time"]
-    for scene_id, im_id, secs, d in rows:
-        if d.category not in obj_ids:
-            raise DataError(f"{path}: no obj_id for category {d.category!r}")
-        R = " ".join(f"{x:.6f}" for x in np.asarray(d.R).reshape(-1))
-        t = " ".join(f"{1000 * x:.3f}" for x in np.asarray(d.t).reshape(-1))
-        lines.append(f"{scene_id},{im_id},{obj_ids[d.category]},{d.score:.6f},{R},{t},{secs:.4f}")
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)
-    return path

@@ -3,68 +3,11 @@ gravity) and large walls (gravity-constrained RANSAC), and their removal from th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from isa.camera import Intrinsics
+from isa.detection.planes import Plane, PlaneParams, PlaneRemoval
 from isa.exceptions import InvalidValueError
-from isa.render.noise import DEPTH_TOLERANCE
-
-
-@dataclass(frozen=True)
-class PlaneParams:
-    """Plane finding. ``tolerance`` ``(base, k)``: a point is on a plane within
-    ``max(base, k * depth**2)`` metres (Kinect noise grows with the square of the depth; k = 3
-    sigma of Khoshelham & Elberink's 1.5e-3 z**2). The floor must hold ``min_floor_fraction`` of
-    the points and lie at least ``min_floor_drop`` below the camera; a wall must hold
-    ``min_wall_fraction``, and its points must span ``min_wall_height`` vertically and
-    ``min_wall_width`` along it (so bed sides and cupboard fronts are kept); the best
-    ``wall_candidates`` distinct hypotheses are checked in turn. ``samples`` points are used to
-    score ``ransac_iterations`` wall hypotheses and ``check_samples`` to screen candidates before
-    the test on every point; ``seed`` makes it reproducible."""
-
-    tolerance: tuple[float, float] = DEPTH_TOLERANCE
-    min_floor_fraction: float = 0.03
-    min_floor_drop: float = 0.3
-    floor_search: float = 0.3
-    min_wall_fraction: float = 0.05
-    min_wall_height: float = 1.0
-    min_wall_width: float = 1.0
-    max_walls: int = 3
-    wall_candidates: int = 8
-    ransac_iterations: int = 200
-    samples: int = 5000
-    check_samples: int = 40000
-    seed: int = 0
-
-
-@dataclass(frozen=True, eq=False)
-class Plane:
-    """A plane ``normal . x + offset = 0`` of the upright frame (``normal`` unit, (3,)).
-
-    ``kind``: ``"floor"`` (normal +z, so ``height = -offset``) or ``"wall"`` (horizontal normal);
-    ``n_inliers``: valid pixels within tolerance of it.
-    """
-
-    kind: str
-    normal: np.ndarray
-    offset: float
-    n_inliers: int
-
-    @property
-    def height(self) -> float:
-        """The floor's height (z) in the upright frame (only meaningful for a floor)."""
-        return -self.offset / float(self.normal[2]) if abs(self.normal[2]) > 1e-9 else float("nan")
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """Signed distances (N,) of upright points (N, 3)."""
-        p = np.asarray(points, dtype=float).reshape(-1, 3)
-        return p[:, 0] * self.normal[0] + p[:, 1] * self.normal[1] + p[:, 2] * self.normal[2] + self.offset
-
-    def to_dict(self) -> dict:
-        return {"kind": self.kind, "normal": np.asarray(self.normal).tolist(), "offset": float(self.offset),
-                "n_inliers": int(self.n_inliers)}
 
 
 def _tolerance(depth: np.ndarray, params: PlaneParams) -> np.ndarray:
@@ -221,20 +164,6 @@ def find_planes(points: np.ndarray, depth: np.ndarray, params: PlaneParams = Pla
     return planes, labels
 
 
-@dataclass(eq=False)
-class PlaneRemoval:
-    """What :func:`remove_planes` did: the cleaned ``depth`` (H, W) float32, the ``planes``, and
-    ``removed`` (H, W) bool, the pixels set to missing."""
-
-    depth: np.ndarray
-    planes: list[Plane]
-    removed: np.ndarray
-
-    @property
-    def floor(self) -> Plane | None:
-        return next((p for p in self.planes if p.kind == "floor"), None)
-
-
 def remove_planes(depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray, params: PlaneParams = PlaneParams(),
                   floor: bool = True, walls: bool = True) -> PlaneRemoval:
     """Set the pixels of the floor (and everything under it) and of walls to 0 (missing).
@@ -258,7 +187,3 @@ def remove_planes(depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarr
     out = depth.copy()
     out[removed] = 0.0
     return PlaneRemoval(out, planes, removed)
-
-
-# ----------------------------------------------------------------------------------------------
-# Hypotheses to boxes

@@ -1,74 +1,17 @@
-"""Refinement: ICP of a category shape onto the observed points around a hypothesis, with the
-object kept upright (yaw about gravity and a translation: 4 degrees of freedom).
-
-Correspondences go from the observed points to the shape's surface the camera would see at the
-current pose (:func:`isa.detection.verify.visible_points`), nearest neighbours by a KD-tree
-(``scipy.spatial.cKDTree``), trimmed at a distance that shrinks over the iterations so clutter
-and neighbours beside the object stop pulling. Each step is the closed-form least-squares yaw
-and translation in the upright frame (a 2D Procrustes problem plus the mean height change).
-"""
+"""Refinement in numpy with a KD-tree (the reference of ``isa._core.refine_pose``; the
+method in ``isa.detection.refine``)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from detect_reference.verify import visible_points
 from isa.camera import Intrinsics
+from isa.detection.refine import Refinement, RefineParams
 from isa.evaluation.boxes3d import rot_z, yaw_from_rotation
-
-__all__ = ["RefineParams", "Refinement", "upright_points", "refine_pose"]
-
-
-@dataclass(frozen=True)
-class RefineParams:
-    """``iterations`` of ICP; the trimming distance falls from ``max_distance`` to
-    ``min_distance`` (metres) geometrically; ``margin`` (metres) around the shape's box that
-    observed points are gathered from; ``max_step_yaw_deg`` / ``max_shift`` bound the total
-    change (a hypothesis that wanders further was not the object's); ``min_pairs`` below which
-    the pose is left as it is; ``max_points`` observed points used at most (evenly
-    subsampled); ``cell_px`` the z-buffer cell for the shape's visible surface."""
-
-    iterations: int = 8
-    max_distance: float = 0.15
-    min_distance: float = 0.03
-    margin: float = 0.15
-    max_yaw_deg: float = 30.0
-    max_shift: float = 0.3
-    min_pairs: int = 30
-    max_points: int = 800
-    cell_px: int = 2
-    fix_height: bool = False
-
-
-@dataclass(frozen=True)
-class Refinement:
-    """The refined pose (``R``, ``t``, camera frame), the RMS distance of the final pairs and
-    their count, the yaw change (radians) and the shift (metres) against the start."""
-
-    R: np.ndarray
-    t: np.ndarray
-    rms: float
-    pairs: int
-    yaw_change: float
-    shift: float
-    converged: bool
-
-
-def upright_points(depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray, stride: int = 2,
-                   floor_height: float | None = None, floor_clearance: float = 0.02) -> np.ndarray:
-    """Upright-frame points (N, 3) of the valid pixels on a ``stride`` grid, leaving out those
-    less than ``floor_clearance`` above ``floor_height`` (when given)."""
-    d = np.asarray(depth, dtype=float)[::stride, ::stride]
-    v, u = np.nonzero(d > 0)
-    z = d[v, u]
-    u, v = u * stride, v * stride
-    cam = np.column_stack([(u - intrinsics.cx) * z / intrinsics.fx, (v - intrinsics.cy) * z / intrinsics.fy, z])
-    up = _apply(np.asarray(R_gravity, dtype=float).reshape(3, 3), cam)
-    return up if floor_height is None else up[up[:, 2] > floor_height + floor_clearance]
 
 
 def _apply(M: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -1,79 +1,15 @@
-"""Verification: how well the observed depth agrees with a category shape at a hypothesis' pose.
-
-The shape's surface samples are moved to the pose and z-buffered on a grid of image cells (so
-only the surface the camera would see counts, self-occlusion included). Each visible cell is
-compared with the observed depth at its pixel, within the sensor tolerance ``max(base, k z^2)``:
-
-- **agree**: the observed surface is where the shape's is;
-- **violate**: the observed surface is well *behind* the shape's: we see through where the
-  object would be, so it is not there (free space); or it is a wall or the floor in front of
-  it (nothing stands behind a wall or under the floor), when the planes are known;
-- **occluded**: the observed surface (not a plane) is in front: something hides the object, no
-  evidence; a shape surface lying on a plane counts here too;
-- **missing**: no depth at that pixel (no evidence);
-- **outside**: the cell falls outside the image (no evidence; the z-buffer spans the image
-  and its size again around it).
-
-The score is ``(agree - violation_weight * violate) / (agree + violate + occluded + outside)``:
-the share of the shape's surface facing the camera that the image confirms, minus what it
-refutes; a hypothesis mostly hidden or out of view cannot score high on the little that shows. It is a fraction
-in ``[-violation_weight, 1]`` whatever the frame, the category or the object's distance, so
-scores of different categories and frames can be ranked together. Verification runs on the raw
-depth (floor and walls kept): a hypothesis floating in front of a wall or sinking into the floor
-is refuted by exactly those pixels.
-"""
+"""Verification in numpy (the reference of ``isa._core.verify_pose``; the rules in
+``isa.detection.verify``)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from isa.camera import Intrinsics
+from isa.detection.verify import Verification, VerifyParams
 from isa.exceptions import InvalidValueError
-from isa.render.noise import DEPTH_TOLERANCE
-
-__all__ = ["VerifyParams", "Verification", "DepthEvidence", "visible_points", "verify_pose", "verify_shapes"]
-
-
-@dataclass(frozen=True)
-class VerifyParams:
-    """``tolerance`` ``(base, k)``: a cell agrees within ``max(base, k * z**2)`` metres (Kinect
-    noise grows with z squared; as :class:`isa.detection.planes.PlaneParams`); ``violation_weight``
-    what one seen-through cell costs against one agreeing; ``cell_spacing`` the grid cell side
-    in units of the shape's point spacing (2 leaves no holes in the z-buffer); ``min_cell_px``
-    the smallest cell in pixels; ``min_cells`` the visible cells below which a hypothesis scores
-    0 (too little of it in the image to say); ``lateral`` (metres) how far sideways the observed
-    surface may be from the shape's and still agree (instances of a category differ from its
-    training shapes: a leg 3 cm off is still a leg), also the reach of a free-space violation:
-    only a cell whose whole ``lateral`` neighbourhood is seen through is refuted;
-    ``lateral_fraction``: the detector widens ``lateral`` to this fraction of the shape's
-    diagonal (a bed's parts vary by more centimetres than a chair's)."""
-
-    tolerance: tuple[float, float] = DEPTH_TOLERANCE
-    violation_weight: float = 1.0
-    cell_spacing: float = 2.0
-    min_cell_px: int = 2
-    min_cells: int = 20
-    lateral: float = 0.03
-    lateral_fraction: float = 0.03
-
-
-@dataclass(frozen=True)
-class Verification:
-    """Counts of visible shape cells per outcome and the score (see the module docstring)."""
-
-    score: float
-    agree: int
-    violate: int
-    occluded: int
-    missing: int
-    outside: int = 0
-
-    @property
-    def cells(self) -> int:
-        return self.agree + self.violate + self.occluded + self.missing + self.outside
 
 
 class DepthEvidence:

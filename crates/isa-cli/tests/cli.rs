@@ -708,11 +708,11 @@ fn detect_two_categories_one_object_json_and_bop() {
     let (depth, k, r, t) = test_view(3);
     let png = tmp("000007.png");
     write_png(&png, 320, 240, depth);
-    let g = format!("{},{},{}", -r[0][2], -r[1][2], -r[2][2]); // the object's -z (down) in the camera
+    let g = format!("--gravity={},{},{}", -r[0][2], -r[1][2], -r[2][2]); // the object's -z (down) in the camera
     let (fx, fy, cx, cy) = (k.fx.to_string(), k.fy.to_string(), k.cx.to_string(), k.cy.to_string());
     let (chair, toilet) = (format!("chair={m}"), format!("toilet={m}"));
     let base = ["detect", "--model", &chair, "--model", &toilet, png.to_str().unwrap(), "-k", &fx, &fy, &cx, &cy,
-                "--gravity", &g, "--stride", "2", "-q"];
+                &g, "--stride", "2", "-q"];
     let o = isa(&base);
     assert!(o.status.success(), "{}", stderr(&o));
     let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -766,9 +766,11 @@ fn detect_errors_name_their_cause() {
     let o = run(&["--model", model().to_str().unwrap()]); // trained without a box
     assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
     assert!(stderr(&o).contains("box"), "{}", stderr(&o));
-    let o = run(&["--model", &m, "--gravity", "0,0,0"]);
-    assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
-    assert!(stderr(&o).contains("--gravity"));
+    for bad in ["0,0,0", "1,2"] {
+        let o = run(&["--model", &m, "--gravity", bad]);
+        assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
+        assert!(stderr(&o).contains("--gravity"));
+    }
     let o = run(&["--model", &m, "--shapes", tmp("no_shapes_here").to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
     assert!(stderr(&o).contains("chair.shapes.isl"), "{}", stderr(&o));

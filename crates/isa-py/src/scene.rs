@@ -237,7 +237,9 @@ pub fn find_planes<'py>(
     let (a, cam) = depth_frame(depth, K)?;
     let d = as_slice(&a, "depth")?;
     let out = py
-        .detach(|| Frame::new(d, cam).map(|f| scene::planes::find_planes(&f, &rg, &p, floor, walls)))
+        .detach(|| {
+            Frame::new(d, cam).map(|f| scene::planes::find_planes(&f, &rg, &p, floor, walls))
+        })
         .map_err(to_py)?;
     planes_dict(py, &out, cam.height, cam.width)
 }
@@ -429,7 +431,10 @@ pub fn detect<'py>(
         let range = match m.get_item("size_range")?.filter(|r| !r.is_none()) {
             Some(r) => {
                 let (height, length): ([f64; 2], [f64; 2]) = r.extract().map_err(|_| {
-                    input_err(format!("models[{i}].size_range: expected ((h0, h1), (l0, l1)), got {}", describe(&r)))
+                    input_err(format!(
+                        "models[{i}].size_range: expected ((h0, h1), (l0, l1)), got {}",
+                        describe(&r)
+                    ))
                 })?;
                 Some(SizeRange { height, length })
             }

@@ -41,14 +41,18 @@ fn load_models(a: &DetectArgs) -> CliResult<Vec<Model>> {
             _ => (None, PathBuf::from(spec)),
         };
         let forest = load_model(&path)?;
-        let category = cat.or_else(|| forest.metadata.category.clone()).ok_or_else(|| {
-            CliError::param(format!(
-                "--model {spec}: the model names no category; give CATEGORY={}",
-                path.display()
-            ))
-        })?;
+        let category = cat
+            .or_else(|| forest.metadata.category.clone())
+            .ok_or_else(|| {
+                CliError::param(format!(
+                    "--model {spec}: the model names no category; give CATEGORY={}",
+                    path.display()
+                ))
+            })?;
         if out.iter().any(|m| m.category == category) {
-            return Err(CliError::param(format!("--model {spec}: category {category} given twice")));
+            return Err(CliError::param(format!(
+                "--model {spec}: category {category} given twice"
+            )));
         }
         let shapes_path = match &a.shapes {
             Some(dir) => dir.join(format!("{category}.shapes.isl")),
@@ -61,19 +65,29 @@ fn load_models(a: &DetectArgs) -> CliResult<Vec<Model>> {
         } else {
             None
         };
-        out.push(Model { category, path, forest, shapes });
+        out.push(Model {
+            category,
+            path,
+            forest,
+            shapes,
+        });
     }
     Ok(out)
 }
 
 fn gravity(a: &DetectArgs) -> CliResult<Option<nalgebra::Matrix3<f64>>> {
     let Some(g) = &a.gravity else { return Ok(None) };
-    let &[x, y, z] = g.as_slice() else {
-        return Err(CliError::param(format!("--gravity: expected GX,GY,GZ (3 numbers), got {g:?}")));
-    };
-    let v = nalgebra::Vector3::new(x, y, z);
+    if g.len() != 3 {
+        return Err(CliError::param(format!(
+            "--gravity: expected GX,GY,GZ, got {} values",
+            g.len()
+        )));
+    }
+    let v = nalgebra::Vector3::new(g[0], g[1], g[2]);
     if !(v.iter().all(|x| x.is_finite()) && v.norm() > 1e-9) {
-        return Err(CliError::param(format!("--gravity: expected a non-zero vector, got {g:?}")));
+        return Err(CliError::param(format!(
+            "--gravity: expected a non-zero vector, got {g:?}"
+        )));
     }
     Ok(Some(rotation_from_up(&-v)))
 }
@@ -101,7 +115,11 @@ fn detection_json(d: &scene::Detection) -> Value {
     })
 }
 
-fn to_json(models: &[Model], params: &DetectParams, results: &[(ImageJob, Camera, DetectOutput, f64)]) -> String {
+fn to_json(
+    models: &[Model],
+    params: &DetectParams,
+    results: &[(ImageJob, Camera, DetectOutput, f64)],
+) -> String {
     let images: Vec<Value> = results
         .iter()
         .map(|(job, cam, out, secs)| {
@@ -134,7 +152,12 @@ fn to_json(models: &[Model], params: &DetectParams, results: &[(ImageJob, Camera
     serde_json::to_string_pretty(&doc).expect("serialise") + "\n"
 }
 
-fn to_bop(models: &[Model], ids: &[u64], scene_id: u64, results: &[(ImageJob, Camera, DetectOutput, f64)]) -> CliResult<String> {
+fn to_bop(
+    models: &[Model],
+    ids: &[u64],
+    scene_id: u64,
+    results: &[(ImageJob, Camera, DetectOutput, f64)],
+) -> CliResult<String> {
     let mut s = String::from("scene_id,im_id,obj_id,score,R,t,time\n");
     for (job, _, out, secs) in results {
         let im_id = job.id.ok_or_else(|| {
@@ -144,7 +167,10 @@ fn to_bop(models: &[Model], ids: &[u64], scene_id: u64, results: &[(ImageJob, Ca
             ))
         })?;
         for d in &out.detections {
-            let k = models.iter().position(|m| m.category == d.category).expect("a model's category");
+            let k = models
+                .iter()
+                .position(|m| m.category == d.category)
+                .expect("a model's category");
             let r: Vec<String> = d.r.iter().flatten().map(|v| format!("{v:.8}")).collect();
             let t: Vec<String> = d.t.iter().map(|v| format!("{:.4}", v * 1000.0)).collect();
             s.push_str(&format!(
@@ -164,7 +190,12 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
     sources.push((flags_json(&a.flags), FLAGS.to_string()));
     let params = params(&sources)?; // bad flags or parameter files fail before a model is read
     let g = gravity(&a)?;
-    let jobs = image_jobs(&a.depth, a.camera.as_deref(), a.intrinsics.as_deref(), a.image_id)?;
+    let jobs = image_jobs(
+        &a.depth,
+        a.camera.as_deref(),
+        a.intrinsics.as_deref(),
+        a.image_id,
+    )?;
     let pb = spinner(a.quiet, format!("loading {} models", a.models.len()));
     let models = load_models(&a)?;
     pb.finish_and_clear();
@@ -172,8 +203,13 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
     let scene_models = models
         .iter()
         .map(|m| {
-            SceneModel::from_forest(&m.category, &m.forest, m.shapes.as_ref().map(|s| &s.0), &m.path.display().to_string())
-                .map_err(|e| CliError::input(e.to_string()))
+            SceneModel::from_forest(
+                &m.category,
+                &m.forest,
+                m.shapes.as_ref().map(|s| &s.0),
+                &m.path.display().to_string(),
+            )
+            .map_err(|e| CliError::input(e.to_string()))
         })
         .collect::<CliResult<Vec<_>>>()?;
     let pb = bar(a.quiet || jobs.len() < 2, jobs.len() as u64, "detecting");
@@ -184,7 +220,9 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
         let metres: Vec<f32> = d.mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
         let cam = Camera::new(job.k, d.width, d.height)?;
         let t0 = std::time::Instant::now();
-        let out = with_threads(a.threads, || scene::detect(&metres, cam, &scene_models, g, None, &params))??;
+        let out = with_threads(a.threads, || {
+            scene::detect(&metres, cam, &scene_models, g, None, &params)
+        })??;
         let secs = t0.elapsed().as_secs_f64();
         results.push((job, cam, out, secs));
         pb.inc(1);
@@ -196,4 +234,3 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
     };
     output::write(a.output.as_deref(), &text)
 }
-

@@ -108,17 +108,38 @@ pub fn yaw_of(m: &Matrix3<f64>) -> f64 {
     (m[(1, 0)] - m[(0, 1)]).atan2(m[(0, 0)] + m[(1, 1)])
 }
 
-/// `np.percentile(values, q)` (linear interpolation); `values` is sorted in place.
+/// `np.percentile(values, q)` (linear interpolation), by selection (`values` is reordered).
 pub(crate) fn percentile(values: &mut [f64], q: f64) -> f64 {
-    values.sort_unstable_by(f64::total_cmp);
     let n = values.len();
     if n == 0 {
         return f64::NAN;
     }
     let pos = q / 100.0 * (n - 1) as f64;
-    let lo = pos.floor() as usize;
-    let hi = (lo + 1).min(n - 1);
-    values[lo] + (values[hi] - values[lo]) * (pos - lo as f64)
+    let lo = (pos.floor() as usize).min(n - 1);
+    let (_, &mut a, right) = values.select_nth_unstable_by(lo, f64::total_cmp);
+    let b = right.iter().copied().fold(f64::INFINITY, f64::min);
+    if b.is_finite() {
+        a + (b - a) * (pos - lo as f64)
+    } else {
+        a
+    }
+}
+
+/// `np.median(values)`, by selection (`values` is reordered).
+pub(crate) fn median(values: &mut [f64]) -> f64 {
+    percentile(values, 50.0)
+}
+
+/// `x.floor() as i64` without a libm call (x86-64's baseline has no rounding instruction):
+/// exact for |x| < 2^53.
+#[inline]
+pub(crate) fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x {
+        i - 1
+    } else {
+        i
+    }
 }
 
 /// A row-major 3x3 array as a matrix.
@@ -129,4 +150,20 @@ pub fn mat(a: &[[f64; 3]; 3]) -> Matrix3<f64> {
 /// A matrix as a row-major 3x3 array.
 pub fn rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
     [0, 1, 2].map(|i| [0, 1, 2].map(|j| m[(i, j)]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn floor_i64_is_the_floor() {
+        for x in [-3.5, -3.0, -2.999, -0.5, -1e-12, -0.0, 0.0, 1e-12, 0.5, 2.0, 2.999, 1e15 + 0.5, -1e15 - 0.5] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+        let mut v = [5.0, 1.0, 4.0, 2.0, 3.0];
+        assert_eq!(percentile(&mut v, 50.0), 3.0);
+        assert_eq!(percentile(&mut v, 12.5), 1.5); // numpy: linear between 1 and 2
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
+    }
 }

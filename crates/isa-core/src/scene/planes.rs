@@ -8,7 +8,7 @@ use rand::seq::index::sample;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::{percentile, Frame};
+use super::{median, percentile, Frame};
 use crate::params::PlaneParams;
 
 /// Kind of a plane.
@@ -62,25 +62,14 @@ fn subsample(rng: &mut ChaCha8Rng, n: usize, k: usize) -> Vec<usize> {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_unstable_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 fn find_floor(z: &[f64], tol: &[f64], p: &PlaneParams, rng: &mut ChaCha8Rng) -> Option<f64> {
     if z.is_empty() {
         return None;
     }
     let idx = subsample(rng, z.len(), p.samples);
-    let mut zs: Vec<f64> = idx.iter().map(|&i| z[i]).collect();
+    let zs_orig: Vec<f64> = idx.iter().map(|&i| z[i]).collect();
     let ts: Vec<f64> = idx.iter().map(|&i| tol[i]).collect();
-    let zs_orig = zs.clone();
-    let lo = percentile(&mut zs, 0.5);
+    let lo = percentile(&mut zs_orig.clone(), 0.5);
     let n_h = ((p.floor_search + 0.05) / 0.01).ceil() as usize;
     let mut best: Option<(usize, f64)> = None;
     for j in 0..n_h {
@@ -101,13 +90,13 @@ fn find_floor(z: &[f64], tol: &[f64], p: &PlaneParams, rng: &mut ChaCha8Rng) -> 
     if (s as f64) < p.min_floor_fraction * zs_orig.len() as f64 {
         return None;
     }
-    let on: Vec<f64> = z
+    let mut on: Vec<f64> = z
         .iter()
         .zip(tol)
         .filter(|(z, t)| (*z - h).abs() < **t)
         .map(|(z, _)| *z)
         .collect();
-    Some(median(on))
+    Some(median(&mut on))
 }
 
 /// Whether points on a vertical plane with this normal span a wall's height and width.
@@ -133,11 +122,11 @@ fn largest_patch(along: &[f64], z: &[f64], cell: f64, min_points: usize) -> Vec<
     let zmin = z.iter().copied().fold(f64::INFINITY, f64::min);
     let a: Vec<usize> = along
         .iter()
-        .map(|x| ((x - amin) / cell).floor() as usize)
+        .map(|x| ((x - amin) / cell) as usize) // >= 0: truncation is the floor
         .collect();
     let b: Vec<usize> = z
         .iter()
-        .map(|x| ((x - zmin) / cell).floor() as usize)
+        .map(|x| ((x - zmin) / cell) as usize)
         .collect();
     let (na, nb) = (a.iter().max().unwrap() + 1, b.iter().max().unwrap() + 1);
     let mut counts = vec![0usize; na * nb];

@@ -4,12 +4,10 @@
 //! trimmed at a distance falling geometrically; each step is linearised point-to-plane least
 //! squares (with normals) or the closed-form 2D Procrustes yaw and mean shift.
 
-use std::collections::HashMap;
-
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 
 use super::verify::visible_points;
-use super::{rot_z, yaw_of, Camera, Frame};
+use super::{floor_i64, rot_z, yaw_of, Camera, Frame};
 use crate::params::RefineParams;
 
 /// The refined pose (object to camera), the RMS distance of the last pairs and their count, the
@@ -51,47 +49,80 @@ pub fn upright_points(
     out
 }
 
-/// Nearest-neighbour lookups within a fixed radius: a hash grid of cells of that side.
+/// Nearest-neighbour lookups within a fixed radius: the points bucketed on a dense grid of
+/// cells of that side over their bounds (compressed rows: a start per cell into one index list).
 struct RadiusGrid<'a> {
     points: &'a [Vector3<f64>],
     cell: f64,
-    cells: HashMap<[i64; 3], Vec<usize>>,
+    lo: Vector3<f64>,
+    dims: [i64; 3],
+    start: Vec<u32>,
+    order: Vec<u32>,
 }
 
 impl<'a> RadiusGrid<'a> {
     fn new(points: &'a [Vector3<f64>], radius: f64) -> Self {
-        let mut cells: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-        for (i, p) in points.iter().enumerate() {
-            cells.entry(Self::key(p, radius)).or_default().push(i);
-        }
-        RadiusGrid {
+        let lo = points
+            .iter()
+            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(p));
+        let hi = points
+            .iter()
+            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(p));
+        let dims = [0, 1, 2].map(|k| ((hi[k] - lo[k]) / radius).floor() as i64 + 1);
+        let n_cells = (dims[0] * dims[1] * dims[2]) as usize;
+        let mut g = RadiusGrid {
             points,
             cell: radius,
-            cells,
+            lo,
+            dims,
+            start: vec![0; n_cells + 1],
+            order: vec![0; points.len()],
+        };
+        let keys: Vec<usize> = points
+            .iter()
+            .map(|p| g.flat(g.key(p)).expect("inside its own bounds"))
+            .collect();
+        for &k in &keys {
+            g.start[k + 1] += 1;
         }
+        for c in 0..n_cells {
+            g.start[c + 1] += g.start[c];
+        }
+        let mut fill = g.start.clone();
+        for (i, &k) in keys.iter().enumerate() {
+            g.order[fill[k] as usize] = i as u32;
+            fill[k] += 1;
+        }
+        g
     }
 
-    fn key(p: &Vector3<f64>, cell: f64) -> [i64; 3] {
-        [
-            (p.x / cell).floor() as i64,
-            (p.y / cell).floor() as i64,
-            (p.z / cell).floor() as i64,
-        ]
+    fn key(&self, p: &Vector3<f64>) -> [i64; 3] {
+        [0, 1, 2].map(|k| floor_i64((p[k] - self.lo[k]) / self.cell))
     }
 
-    /// The nearest point strictly within the radius: `(index, distance)`.
+    fn flat(&self, k: [i64; 3]) -> Option<usize> {
+        let inside = (0..3).all(|a| k[a] >= 0 && k[a] < self.dims[a]);
+        inside.then(|| ((k[0] * self.dims[1] + k[1]) * self.dims[2] + k[2]) as usize)
+    }
+
+    /// The nearest point strictly within the radius: `(index, distance)`; ties to the lower index.
     fn nearest(&self, q: &Vector3<f64>) -> Option<(usize, f64)> {
-        let k = Self::key(q, self.cell);
+        if self.points.is_empty() {
+            return None;
+        }
+        let k = self.key(q);
         let mut best: Option<(usize, f64)> = None;
         for dx in -1..=1 {
             for dy in -1..=1 {
                 for dz in -1..=1 {
-                    if let Some(ids) = self.cells.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
-                        for &i in ids {
-                            let d2 = (self.points[i] - q).norm_squared();
-                            if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
-                                best = Some((i, d2));
-                            }
+                    let Some(c) = self.flat([k[0] + dx, k[1] + dy, k[2] + dz]) else {
+                        continue;
+                    };
+                    for &i in &self.order[self.start[c] as usize..self.start[c + 1] as usize] {
+                        let i = i as usize;
+                        let d2 = (self.points[i] - q).norm_squared();
+                        if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
+                            best = Some((i, d2));
                         }
                     }
                 }

@@ -10,7 +10,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{Camera, Frame};
+use super::{floor_i64, Camera, Frame};
 use crate::params::VerifyParams;
 
 /// Side of the comparison grid around each cell's pixel.
@@ -47,31 +47,42 @@ pub fn visible_points(
     let (w, h) = (cam.width as i64, cam.height as i64);
     let mu = (margin * w as f64) as i64;
     let mv = (margin * h as f64) as i64;
-    let cols = (w + 2 * mu + cell_px - 1) / cell_px;
-    let mut cand: Vec<(i64, f64, usize, i64, i64)> = Vec::with_capacity(points.len());
+    // Candidates with their cell (column, row); the front-most per cell on a dense grid over
+    // the cells the points reach (an object covers few), ties to the earlier point.
+    let mut cand: Vec<(i64, i64, f64, usize, i64, i64)> = Vec::with_capacity(points.len());
+    let (mut c0, mut c1, mut r0, mut r1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
     for (i, p) in points.iter().enumerate() {
         let z = p.z;
         if z <= 0.05 {
             continue;
         }
-        let u = (cam.k.fx * p.x / z + cam.k.cx + 0.5).floor() as i64;
-        let v = (cam.k.fy * p.y / z + cam.k.cy + 0.5).floor() as i64;
+        let u = floor_i64(cam.k.fx * p.x / z + cam.k.cx + 0.5);
+        let v = floor_i64(cam.k.fy * p.y / z + cam.k.cy + 0.5);
         if u < -mu || u >= w + mu || v < -mv || v >= h + mv {
             continue;
         }
-        let cell = ((v + mv) / cell_px) * cols + (u + mu) / cell_px;
-        cand.push((cell, z, i, u, v));
+        let (c, r) = ((u + mu) / cell_px, (v + mv) / cell_px);
+        (c0, c1, r0, r1) = (c0.min(c), c1.max(c), r0.min(r), r1.max(r));
+        cand.push((c, r, z, i, u, v));
     }
-    cand.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)).then(a.2.cmp(&b.2)));
-    let mut out = Vec::with_capacity(cand.len() / 2);
-    let mut last = i64::MIN;
-    for &(cell, _, i, u, v) in &cand {
-        if cell != last {
-            out.push((i, u, v, u >= 0 && u < w && v >= 0 && v < h));
-            last = cell;
+    if cand.is_empty() {
+        return vec![];
+    }
+    let cols = (c1 - c0 + 1) as usize;
+    let mut best = vec![u32::MAX; cols * (r1 - r0 + 1) as usize];
+    for (k, &(c, r, z, ..)) in cand.iter().enumerate() {
+        let slot = &mut best[(r - r0) as usize * cols + (c - c0) as usize];
+        if *slot == u32::MAX || z < cand[*slot as usize].2 {
+            *slot = k as u32;
         }
     }
-    out
+    best.iter()
+        .filter(|&&k| k != u32::MAX)
+        .map(|&k| {
+            let (_, _, _, i, u, v) = cand[k as usize];
+            (i, u, v, u >= 0 && u < w && v >= 0 && v < h)
+        })
+        .collect()
 }
 
 /// The cell side in pixels for samples of `spacing` at depth `z`.
