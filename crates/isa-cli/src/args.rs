@@ -18,7 +18,24 @@ Exit codes:
   3  a file is missing or cannot be read/written (the message names it)
   4  an input is invalid: corrupt or foreign model/training-set file, depth image that is not
      16-bit single-channel or does not fit its intrinsics, malformed camera JSON
-  5  a parameter value is invalid (the message names the parameter)";
+  5  a parameter value is invalid (the message names the parameter)
+  130  interrupted (SIGINT/Ctrl-C; shells report 128 + the signal): outputs are written
+     atomically, so each is the old file or absent, never half-written
+A closed standard output (`isa inspect m | head`) ends the command quietly with 0.";
+
+/// A flag's number, refused (by clap, naming the flag, exit 2) unless finite: NaN and
+/// infinities would pass through the JSON overlay as `null`.
+fn finite<T: std::str::FromStr + Into<f64> + Copy>(s: &str) -> Result<T, String>
+where
+    T::Err: Display,
+{
+    let v: T = s.parse().map_err(|e: T::Err| e.to_string())?;
+    if v.into().is_finite() {
+        Ok(v)
+    } else {
+        Err("not a finite number".into())
+    }
+}
 
 /// `text [default: value]`, the value taken from the core's defaults.
 fn dflt(text: &str, value: impl Display) -> String {
@@ -116,7 +133,7 @@ pub struct TrainFlags {
     #[arg(long, help = dflt("Nodes with fewer parts become leaves", fp().min_samples_split))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub min_samples_split: Option<usize>,
-    #[arg(long, help = dflt("Fraction of the parts each tree trains on, in (0, 1]", fp().bag_fraction))]
+    #[arg(long, value_parser = finite::<f64>, help = dflt("Fraction of the parts each tree trains on, in (0, 1]", fp().bag_fraction))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub bag_fraction: Option<f64>,
     #[arg(long, help = dflt(
@@ -160,7 +177,8 @@ pub struct PredictArgs {
     #[arg(value_name = "PNG", conflicts_with = "scene")]
     pub depth: Vec<PathBuf>,
     /// Pinhole intrinsics in pixels: FX FY CX CY.
-    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera")]
+    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera",
+          allow_negative_numbers = true, value_parser = finite::<f64>)]
     pub intrinsics: Option<Vec<f64>>,
     /// Camera file: a BOP scene_camera.json (per image id: cam_K, depth_scale; the id is the
     /// PNG's file name, e.g. 000012.png, or --image-id) or a BOP camera.json (fx, fy, cx, cy,
@@ -207,22 +225,25 @@ pub struct PredictFlags {
     #[arg(long, help = model_dflt("Parts on every STRIDE-th pixel in u and v", pp().stride))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stride: Option<usize>,
-    #[arg(long, help = model_dflt("Ignore pixels nearer than this, metres", pp().min_depth))]
+    // allow_hyphen_values: a value such as -inf reaches the finite check (and its message)
+    // instead of reading as short flags.
+    #[arg(long, allow_hyphen_values = true, value_parser = finite::<f32>,
+          help = model_dflt("Ignore pixels nearer than this, metres", pp().min_depth))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub min_depth: Option<f32>,
-    #[arg(long, help = model_dflt(
+    #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Ignore pixels farther than this, metres",
         pp().max_depth.map_or("no limit".to_string(), |m| m.to_string())
     ))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_depth: Option<f32>,
-    #[arg(long, help = model_dflt(
+    #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Radius of the position kernel and grid cell, metres",
         pp().vote.position_bandwidth
     ))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub position_bandwidth: Option<f32>,
-    #[arg(long, help = model_dflt(
+    #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Geodesic radius of the rotation kernel, radians",
         pp().vote.rotation_bandwidth
     ))]
@@ -231,7 +252,7 @@ pub struct PredictFlags {
     #[arg(long, help = model_dflt("Hypotheses per image at most", pp().vote.max_hypotheses))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_hypotheses: Option<usize>,
-    #[arg(long, help = model_dflt(
+    #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Positions closer than this to a better hypothesis are suppressed, metres",
         pp().vote.nms_radius
     ))]
@@ -304,9 +325,8 @@ pub struct DetectArgs {
     #[arg(short, long, value_name = "JSON")]
     pub camera: Option<PathBuf>,
     /// Gravity in camera coordinates (OpenCV: x right, y down, z forward), any length, e.g.
-    /// 0,1,0 for a level camera (write --gravity=-0.1,0.9,0.2 when the first is negative)
-    /// [default: the floor's normal, else the votes' up axis].
-    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',')]
+    /// 0,1,0 for a level camera [default: the floor's normal, else the votes' up axis].
+    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',', allow_hyphen_values = true)]
     pub gravity: Option<Vec<f64>>,
     /// Folder of shape libraries `<category>.shapes.isl` [default: `<model>.shapes.isl` beside
     /// each model].

@@ -77,13 +77,10 @@ fn load_models(a: &DetectArgs) -> CliResult<Vec<Model>> {
 
 fn gravity(a: &DetectArgs) -> CliResult<Option<nalgebra::Matrix3<f64>>> {
     let Some(g) = &a.gravity else { return Ok(None) };
-    if g.len() != 3 {
-        return Err(CliError::param(format!(
-            "--gravity: expected GX,GY,GZ, got {} values",
-            g.len()
-        )));
-    }
-    let v = nalgebra::Vector3::new(g[0], g[1], g[2]);
+    let &[x, y, z] = g.as_slice() else {
+        return Err(CliError::param(format!("--gravity: expected GX,GY,GZ (3 numbers), got {g:?}")));
+    };
+    let v = nalgebra::Vector3::new(x, y, z);
     if !(v.iter().all(|x| x.is_finite()) && v.norm() > 1e-9) {
         return Err(CliError::param(format!(
             "--gravity: expected a non-zero vector, got {g:?}"
