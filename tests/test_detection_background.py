@@ -37,13 +37,13 @@ def _room(mesh, x, y, yaw, eye, target, clutter=True):
 
 
 def _labelled_parts(rooms, stride=4):
-    from isa import _core
-    from isa.detection.background import depth_mm
+    """Parts of the rooms on the stride grid, labelled by the object's visible pixels
+    (:func:`isa.detection.background.labelled_parts`)."""
+    from types import SimpleNamespace
 
-    images = [depth_mm(d) for d, _, _ in rooms]
-    parts = _core.sample_parts(images, stride=stride)
-    on = np.array([rooms[i][1][v, u] for i, u, v in parts])
-    return images, parts, on
+    from isa.detection.background import labelled_parts
+
+    return labelled_parts([SimpleNamespace(depth=d, mask=m) for d, m, _ in rooms], stride)
 
 
 @pytest.fixture(scope="module")
