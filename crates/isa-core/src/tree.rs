@@ -42,6 +42,21 @@ pub struct Node {
     pub is_leaf: bool,
 }
 
+impl Node {
+    /// A leaf (feature and threshold unused) whose votes are leaf `index`'s.
+    pub const fn leaf(index: u32) -> Node {
+        Node {
+            feature: Feature {
+                u: [0.0; 2],
+                v: [0.0; 2],
+            },
+            threshold: 0.0,
+            child: index,
+            is_leaf: true,
+        }
+    }
+}
+
 /// One weighted vote mode of a leaf.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Vote {
@@ -239,15 +254,7 @@ fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outco
 /// split; (4) children get breadth-first ids. Phases 1-3 run in parallel. With the environment
 /// variable `ISA_TRACE` set, the wall time of each phase is printed to stderr per tree.
 pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
-    let placeholder = Node {
-        feature: Feature {
-            u: [0.0; 2],
-            v: [0.0; 2],
-        },
-        threshold: 0.0,
-        child: 0,
-        is_leaf: true,
-    };
+    let placeholder = Node::leaf(0);
     let mut t = Tree {
         nodes: vec![placeholder],
         leaf_offsets: vec![0],

@@ -349,22 +349,13 @@ mod tests {
     use super::super::{quat_angle, synth};
     use super::*;
     use crate::criterion::RawTargets;
-    use crate::features::Feature;
     use crate::forest::TrainingSet;
     use crate::params::{ForestParams, Quality};
     use crate::tree::{Node, Tree, Vote};
 
     /// A forest of `n` one-leaf trees, each leaf voting `votes`.
     fn constant_forest(n: usize, votes: &[Vote]) -> Forest {
-        let leaf = Node {
-            feature: Feature {
-                u: [0.0; 2],
-                v: [0.0; 2],
-            },
-            threshold: 0.0,
-            child: 0,
-            is_leaf: true,
-        };
+        let leaf = Node::leaf(0);
         let tree = Tree {
             nodes: vec![leaf],
             leaf_offsets: vec![0, votes.len() as u32],
@@ -465,10 +456,8 @@ mod tests {
             } else {
                 leaf_votes[1]
             };
-            for a in 0..3 {
-                assert!(
-                    (f64::from(vote.position[a]) - (x[a] + f64::from(lv.offset[a]))).abs() < 1e-5
-                );
+            for ((p, xa), o) in vote.position.iter().zip(x).zip(lv.offset) {
+                assert!((f64::from(*p) - (xa + f64::from(o))).abs() < 1e-5);
             }
             assert_eq!(vote.weight, lv.weight / 4.0);
         }
@@ -534,6 +523,7 @@ mod tests {
     }
 
     /// Trains a small forest on views of the synthetic chair; returns it with the intrinsics.
+    #[allow(clippy::type_complexity)] // a test fixture: forest, camera and the (R, t) of its views
     pub(crate) fn chair_forest() -> (Forest, Intrinsics, Vec<([[f64; 3]; 3], [f64; 3])>) {
         let k = Intrinsics {
             fx: 200.0,
@@ -571,12 +561,7 @@ mod tests {
             min_samples_leaf: 3,
             ..Default::default()
         };
-        let targets = RawTargets {
-            offsets: &offsets,
-            rotations: &rotations,
-            link_angles: None,
-            node_offsets: None,
-        };
+        let targets = RawTargets::pose(&offsets, &rotations);
         let data = TrainingSet {
             store: &store,
             parts: &parts,
