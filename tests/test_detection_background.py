@@ -37,13 +37,13 @@ def _room(mesh, x, y, yaw, eye, target, clutter=True):
 
 
 def _labelled_parts(rooms, stride=4):
-    from isa import _core
-    from isa.detection.background import depth_mm
+    """Parts of the rooms on the stride grid, labelled by the object's visible pixels
+    (:func:`isa.detection.background.labelled_parts`)."""
+    from types import SimpleNamespace
 
-    images = [depth_mm(d) for d, _, _ in rooms]
-    parts = _core.sample_parts(images, stride=stride)
-    on = np.array([rooms[i][1][v, u] for i, u, v in parts])
-    return images, parts, on
+    from isa.detection.background import labelled_parts
+
+    return labelled_parts([SimpleNamespace(depth=d, mask=m) for d, m, _ in rooms], stride)
 
 
 @pytest.fixture(scope="module")
@@ -101,3 +101,15 @@ def test_background_parts_lower_floor_and_wall_votes_in_an_unseen_room(trained, 
     w_on = v["weight"] * on[v["part"]]
     pw = fg.of(forest.apply(images, parts))[v["part"], v["tree"]]
     assert (w_on * pw).sum() / (v["weight"] * pw).sum() > 1.5 * w_on.sum() / v["weight"].sum()
+
+
+def test_command_names_a_missing_model_and_writes_nothing(tmp_path, capsys):
+    from isa.detection.background import main
+
+    out = tmp_path / "chair.foreground.npz"
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path), "--category", "chair", "--model", str(tmp_path / "none.isa"), "--renders",
+              str(tmp_path / "r"), "-o", str(out)])
+    assert e.value.code == 2
+    assert "none.isa" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "r").exists()

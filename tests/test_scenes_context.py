@@ -77,3 +77,19 @@ def test_training_set_keeps_the_room_parts_on_the_mask(rendered):
         assert ctx.images[i].shape == f.depth.shape
         assert np.count_nonzero(ctx.images[i]) == np.count_nonzero(f.depth > 0)
         assert np.count_nonzero(alone.images[i]) == np.count_nonzero(f.mask & (f.depth > 0))
+
+
+def test_train_category_in_context_learns_from_room_views(tmp_path):
+    """``train_category(context=True)``: the forest's images are whole room views and the model
+    says so; the one-class model's metadata has no such key (its bytes are the paper protocol's)."""
+    from isa.forest.build import train_category
+    from isa.forest.model import Forest
+
+    kw = dict(procedural=1, views=2, stride=8, trees=1, depth=6, candidates=10, progress=False)
+    ctx = Forest.load(train_category(None, "chair", tmp_path / "ctx.isa", context=True, cache=tmp_path / "c", **kw))
+    alone = Forest.load(train_category(None, "chair", tmp_path / "alone.isa", cache=tmp_path / "c", **kw))
+    t_ctx, t_alone = ctx.metadata["training"], alone.metadata["training"]
+    assert t_ctx["context"] is True and "context" not in t_alone
+    assert t_ctx["images"] == t_alone["images"] == 2
+    assert (tmp_path / "c" / "renders").is_dir() and any(p.name.startswith("chair-context-")
+                                                         for p in (tmp_path / "c" / "renders").iterdir())

@@ -122,7 +122,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--split", default="val")
     p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
     p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz")
-    p.add_argument("--foreground", type=Path, help="folder of <category>.foreground.npz")
+    p.add_argument("--foreground", type=Path,
+                   help="folder of <category>.foreground.npz (a category without one votes unweighted)")
     p.add_argument("--variants", nargs="+", default=["baseline", "forest", "verify", "refine"])
     p.add_argument("--limit", type=int, default=None, help="first N frames only")
     p.add_argument("--json", type=Path, help="write the numbers here")
@@ -136,6 +137,9 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(f"--model: expected CATEGORY=PATH, got {item!r}")
         shapes = a.shapes / f"{cat}.shapes.npz" if a.shapes else None
         fg = a.foreground / f"{cat}.foreground.npz" if a.foreground else None
+        if fg is not None and not fg.is_file():
+            print(f"{cat}: no {fg.name} in {a.foreground}, its votes are not weighted")
+            fg = None
         models.append(load_model(path, shapes=shapes, category=cat, foreground=fg))
     cats = [m.category for m in models]
     if bool(a.scenes) == bool(a.sun):
