@@ -1,5 +1,5 @@
-//! Inference bindings: whole-image `predict` / `image_votes` (also methods of `Forest`), and
-//! `find_modes` on raw votes.
+//! Inference bindings: the whole-image calls behind `Forest.predict` / `Forest.image_votes`,
+//! and `find_modes` on raw votes.
 //!
 //! Keyword parameters of `predict` / `image_votes` are the fields of
 //! `isa_core::PredictParams` with the vote keys flat (`stride`, `min_depth`, `max_depth`,
@@ -94,22 +94,6 @@ fn depth_mm(depth: &Bound<'_, PyAny>) -> PyResult<(Vec<u16>, usize, usize)> {
     Ok((px, w, h))
 }
 
-/// The `_core.Forest` behind `obj`: itself, or its `.core` (an `isa.forest.Forest`).
-fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyForest>> {
-    if let Ok(f) = obj.cast::<PyForest>() {
-        return Ok(f.clone());
-    }
-    if let Ok(c) = obj.getattr("core") {
-        if let Ok(f) = c.cast::<PyForest>() {
-            return Ok(f.clone());
-        }
-    }
-    Err(input_err(format!(
-        "forest: expected an isa.forest.Forest or isa._core.Forest, got {}",
-        describe(obj)
-    )))
-}
-
 fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<usize>) -> PyResult<Option<usize>> {
     match n_threads {
         Some(0) => Err(param_err(
@@ -193,38 +177,6 @@ pub fn image_votes_with<'py>(
     Ok(d)
 }
 
-/// Ranked 6D pose hypotheses of the objects in a whole depth image (paper Eq. 12-13):
-/// `forest.predict(depth, K, **params)` (see `Forest.predict`).
-#[pyfunction]
-#[pyo3(signature = (forest, depth, K, *, n_threads=None, **params))]
-#[allow(non_snake_case)]
-pub fn predict<'py>(
-    forest: &Bound<'py, PyAny>,
-    depth: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
-    n_threads: Option<usize>,
-    params: Option<&Bound<'py, PyDict>>,
-) -> PyResult<Bound<'py, PyList>> {
-    predict_with(&core_forest(forest)?, depth, K, n_threads, params)
-}
-
-/// Every vote of a whole depth image (for plots): `forest.image_votes(depth, K, **params)`.
-#[pyfunction]
-#[pyo3(signature = (forest, depth, K, *, n_threads=None, **params))]
-#[allow(non_snake_case)]
-pub fn image_votes<'py>(
-    forest: &Bound<'py, PyAny>,
-    depth: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
-    n_threads: Option<usize>,
-    params: Option<&Bound<'py, PyDict>>,
-) -> PyResult<Bound<'py, PyDict>> {
-    image_votes_with(&core_forest(forest)?, depth, K, n_threads, params)
-}
-
-/// Mode finding on given votes: `positions` (V, 3) float32 metres, `rotations` (V, 4) float32
-/// (w, x, y, z, any sign), `weights` (V,) float32 or None (all 1). Keyword parameters: those of
-/// `VoteParams`. Returns hypotheses as `predict` does.
 #[pyfunction]
 #[pyo3(signature = (positions, rotations, weights=None, *, n_threads=None, **params))]
 pub fn find_modes<'py>(
@@ -277,8 +229,6 @@ pub fn default_predict_params(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(predict, m)?)?;
-    m.add_function(wrap_pyfunction!(image_votes, m)?)?;
     m.add_function(wrap_pyfunction!(find_modes, m)?)?;
     m.add_function(wrap_pyfunction!(default_predict_params, m)?)?;
     Ok(())
