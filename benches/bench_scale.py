@@ -123,10 +123,8 @@ def run_child(*args: str) -> dict:
 
 
 def cluster_times(folder: str, prm: dict) -> list[tuple[str, float, bytes]]:
-    from isa import cluster
+    from isa import _core, cluster
     from isa.forest import Forest, ForestParams
-
-    from isa import _core
 
     fp = ForestParams(**prm)
     t0 = time.perf_counter()
