@@ -14,6 +14,8 @@ columns, 300 bytes a part), one shard per instance of 89 crops.
 * wall time of the same forest's trees on a ``LocalCluster`` of 1 and of 2 single-threaded
   workers (``isa.cluster.fit_forest``, one task per tree), on the smallest size, with the
   one-process ``Forest.fit_shards`` (all cores) as baseline; all three give the same bytes.
+  Each worker opens the shards and builds the targets once (``prepare``, timed alone first), so
+  on W free cores the wall time is about ``prepare + ceil(trees / W) * tree``.
 
 Usage::
 
@@ -121,10 +123,17 @@ def run_child(*args: str) -> dict:
 
 
 def cluster_times(folder: str, prm: dict) -> list[tuple[str, float, bytes]]:
-    from isa import cluster
+    from isa import _core, cluster
     from isa.forest import Forest, ForestParams
 
     fp = ForestParams(**prm)
+    t0 = time.perf_counter()
+    trainer = _core.ShardTrainer(folder, n_threads=1, **prm)
+    t1 = time.perf_counter()
+    trainer.fit_tree(0)
+    t2 = time.perf_counter()
+    del trainer
+    print(f"  one task, 1 thread: open + prepare the shards {t1 - t0:.1f} s (once per worker), one tree {t2 - t1:.1f} s")
     rows = []
     t0 = time.perf_counter()
     ref = Forest(fp).fit_shards(folder).to_bytes()
