@@ -632,7 +632,7 @@ mod tests {
         assert_eq!(one.shape, vec![1]);
         // A header as NumPy 2 writes it (shape of a 1-D array, version 1.0).
         let mut h = b"{'descr': '<i4', 'fortran_order': False, 'shape': (2,), }".to_vec();
-        while (10 + h.len() + 1) % 64 != 0 {
+        while !(10 + h.len() + 1).is_multiple_of(64) {
             h.push(b' ');
         }
         h.push(b'\n');

@@ -115,7 +115,8 @@ impl Tree {
             if !n.threshold.is_finite() {
                 return Err(format!("node {i}: threshold {} is not finite", n.threshold));
             }
-            if f.u.iter().chain(&f.v).any(|x| !(x.abs() <= MAX_FEATURE_OFFSET)) {
+            // `x.abs() <= bound` is false for NaN too.
+            if !f.u.iter().chain(&f.v).all(|x| x.abs() <= MAX_FEATURE_OFFSET) {
                 return Err(format!(
                     "node {i}: feature offsets {:?}, {:?} beyond ±{MAX_FEATURE_OFFSET} pixel·metres",
                     f.u, f.v
@@ -130,7 +131,7 @@ impl Tree {
             if !(0.0..=1.0).contains(&v.weight) {
                 return Err(format!("vote {k}: weight {} is not in [0, 1]", v.weight));
             }
-            if v.offset.iter().any(|x| !(x.abs() <= MAX_TARGET_OFFSET)) {
+            if !v.offset.iter().all(|x| x.abs() <= MAX_TARGET_OFFSET) {
                 return Err(format!(
                     "vote {k}: offset {:?} beyond ±{MAX_TARGET_OFFSET} m",
                     v.offset

@@ -116,7 +116,7 @@ pub(super) struct AlignedF32(Vec<Lane>);
 
 impl AlignedF32 {
     fn zeros(len: usize) -> Self {
-        debug_assert!(len % 8 == 0);
+        debug_assert!(len.is_multiple_of(8));
         AlignedF32(vec![Lane::default(); len / 8])
     }
     pub(super) fn as_slice(&self) -> &[f32] {
