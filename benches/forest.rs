@@ -135,14 +135,15 @@ fn traversal(c: &mut Criterion) {
         let data = TrainingSet {
             store: &store,
             parts: &parts,
-            targets: RawTargets {
-                offsets: &off,
-                rotations: &rot,
-                link_angles: None,
-                node_offsets: None,
-            },
+            targets: RawTargets::pose(&off, &rot),
         };
-        Forest::fit(&params.clone().check().unwrap(), &data, Default::default(), None).unwrap()
+        Forest::fit(
+            &params.clone().check().unwrap(),
+            &data,
+            Default::default(),
+            None,
+        )
+        .unwrap()
     };
     group.throughput(Throughput::Elements(n as u64));
     group.bench_function("10_trees", |b| {

@@ -9,7 +9,17 @@ use rand_chacha::ChaCha8Rng;
 
 use isa_core::criterion::RawTargets;
 use isa_core::vote::{self, synth, DepthImage, Intrinsics, PoseVote, PredictParams, VoteParams};
-use isa_core::{sample_parts, DepthStore, Forest, ForestParams, Quality, TrainingSet};
+use isa_core::{sample_parts, DepthStore, Forest, ForestParams, Quality, TrainingSet, Valid};
+
+/// The default inference parameters at part stride `stride`, checked.
+fn at_stride(stride: usize) -> Valid<PredictParams> {
+    PredictParams {
+        stride,
+        ..Default::default()
+    }
+    .check()
+    .unwrap()
+}
 
 fn gauss(rng: &mut ChaCha8Rng) -> f32 {
     let u1: f32 = rng.random::<f32>().max(1e-9);
@@ -98,17 +108,16 @@ fn chair_forest() -> Forest {
         quality: Quality::Q1,
         ..Default::default()
     };
-    let targets = RawTargets {
-        offsets: &offsets,
-        rotations: &rotations,
-        link_angles: None,
-        node_offsets: None,
-    };
-    Forest::fit(&params.clone().check().unwrap(), &TrainingSet {
+    let targets = RawTargets::pose(&offsets, &rotations);
+    Forest::fit(
+        &params.clone().check().unwrap(),
+        &TrainingSet {
             store: &store,
             parts: &parts,
             targets,
-        }, Default::default(), None,
+        },
+        Default::default(),
+        None,
     )
     .unwrap()
 }
@@ -167,10 +176,7 @@ fn frames() -> &'static Frames {
             let depth = f.depth(scene);
             let valid = depth.iter().filter(|&&d| d > 0).count();
             let img = DepthImage::new(depth, 640, 480).unwrap();
-            let pp = PredictParams {
-                stride,
-                ..Default::default()
-            };
+            let pp = at_stride(stride);
             let iv = vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
             eprintln!(
                 "{scene} 640x480 ({valid} valid pixels), stride {stride}: {} parts, {} votes ({} trees, {} nodes)",
@@ -238,10 +244,7 @@ fn cpu_report() {
         let f = frames();
         for (scene, stride) in CASES {
             let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
-            let pp = PredictParams {
-                stride,
-                ..Default::default()
-            };
+            let pp = at_stride(stride);
             let iv = vote::image_votes(&f.forest, &img, &K640, &pp).unwrap();
             let mut store = DepthStore::new();
             store.push(640, 480, f.depth(scene)).unwrap();
@@ -284,10 +287,7 @@ fn bench(c: &mut Criterion) {
     });
 
     for (scene, stride) in CASES {
-        let pp = PredictParams {
-            stride,
-            ..Default::default()
-        };
+        let pp = at_stride(stride);
         c.bench_function(
             &format!("predict/640x480_{scene}_10trees_stride{stride}"),
             |b| {

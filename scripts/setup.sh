@@ -6,8 +6,15 @@ cd "$(dirname "$0")/.."
 
 # Headless rendering: pyrender over EGL (Mesa llvmpipe); importing pyrender loads pyglet,
 # which needs libGL and libXrender even off-screen. OSMesa as a fallback.
+# The package list is isa.render.renderer.HEADLESS_GL_APT (read from the source: nothing is
+# installed yet).
+gl_pkgs=$(python3 -c "
+import ast
+tree = ast.parse(open('python/isa/render/renderer.py').read())
+print(' '.join(next(ast.literal_eval(n.value) for n in tree.body
+                    if isinstance(n, ast.Assign) and getattr(n.targets[0], 'id', '') == 'HEADLESS_GL_APT')))")
 need_apt=()
-for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1 libosmesa6; do
+for pkg in $gl_pkgs; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done
 if [ ${#need_apt[@]} -gt 0 ]; then

@@ -45,7 +45,6 @@ def test_empty_training_set_is_a_data_error():
 
 
 def test_predict_reads_the_models_defaults_and_explicit_parameters_win():
-    from isa import _core
     from isa.camera import Intrinsics
     from isa.forest.model import Forest, ForestParams
     from test_vote import K, plate, plate_training_set
@@ -56,8 +55,8 @@ def test_predict_reads_the_models_defaults_and_explicit_parameters_win():
     depth, _ = plate(centre=(0.02, 0.0, 1.5))
     intr = Intrinsics.from_K(K, depth.shape[1], depth.shape[0])
     depth_m = depth.astype(np.float32) / 1000
-    s2 = _core.predict(f.core, depth_m, K, stride=2)[0]["support"]
-    s4 = _core.predict(f.core, depth_m, K, stride=4)[0]["support"]
+    s2 = f.core.predict(depth_m, K, stride=2)[0]["support"]
+    s4 = f.core.predict(depth_m, K, stride=4)[0]["support"]
     assert s2 > 2 * s4  # a quarter of the parts at stride 4
     assert pipeline.predict(f, depth_m, intr)[0]["support"] == s2  # the model's default
     assert pipeline.predict(f, depth_m, intr, stride=4)[0]["support"] == s4  # explicit wins

@@ -3,6 +3,9 @@ and the optional Kinect noise model."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import trimesh
@@ -189,3 +192,14 @@ def test_noise_drops_grazing_surfaces():
     assert steep.sum() > 1000 and mild.sum() > 1000
     assert (noisy[steep] > 0).mean() < 0.05
     assert (noisy[mild] > 0).mean() > 0.9
+
+
+def test_without_pyrender_the_error_names_the_install_line():
+    # A fresh interpreter in which `import pyrender` fails, as on a plain `pip install isa`.
+    code = ("import sys; sys.modules['pyrender'] = None\n"
+            "from isa.render import renderer\n"
+            "try:\n    renderer._import_pyrender()\n"
+            "except ImportError as e:\n    print(type(e).__name__, '|', e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.startswith("MissingDependencyError |"), out
+    assert "pip install 'isa[render]'" in out and "libegl1" in out

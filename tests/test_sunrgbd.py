@@ -196,11 +196,15 @@ def test_processed_real_frame_reprojects_to_the_cloud(shared_data):
 # ---------------------------------------------------------------------------------------------- malformed
 
 
+def _copy_without_images(src, dst):
+    """A copy of a shared SUN RGB-D folder (no RGB images) that a test may break."""
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("image"))
+    return dst
+
+
 @pytest.fixture
 def native_copy(shared_data, tmp_path):
-    dst = tmp_path / "img_0063"
-    shutil.copytree(shared_data / NATIVE, dst, ignore=shutil.ignore_patterns("image"))
-    return dst
+    return _copy_without_images(shared_data / NATIVE, tmp_path / "img_0063")
 
 
 def test_native_missing_files(native_copy):
@@ -269,9 +273,7 @@ def test_native_missing_annotation(native_copy):
 
 @pytest.fixture
 def processed_copy(shared_data, tmp_path):
-    dst = tmp_path / "sunrgbd_trainval"
-    shutil.copytree(shared_data / PROCESSED, dst, ignore=shutil.ignore_patterns("image"))
-    return dst
+    return _copy_without_images(shared_data / PROCESSED, tmp_path / "sunrgbd_trainval")
 
 
 def test_processed_missing_calib(processed_copy):

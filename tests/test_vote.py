@@ -64,7 +64,7 @@ def test_recovers_the_plate_in_a_larger_frame(trained):
     Kbig = K.copy()
     Kbig[0, 2], Kbig[1, 2] = 159.5, 119.5
     depth, ssc = plate(320, 240, Kbig, centre=(0.3, -0.1, 1.5))
-    hyps = _core.predict(f, depth, Kbig, stride=2)
+    hyps = f.predict(depth, Kbig, stride=2)
     assert hyps, "no hypothesis"
     best = hyps[0]
     assert set(best) == {"R", "t", "quaternion", "score", "support", "position_score", "position_support"}
@@ -73,29 +73,28 @@ def test_recovers_the_plate_in_a_larger_frame(trained):
     assert np.allclose(best["R"], np.eye(3), atol=0.05)
     assert [h["score"] for h in hyps] == sorted((h["score"] for h in hyps), reverse=True)
     # float metres give the same answer as uint16 mm; so do the three forms of K
-    same = _core.predict(f, depth.astype(np.float32) / 1000, (Kbig[0, 0], Kbig[1, 1], Kbig[0, 2], Kbig[1, 2]),
-                         stride=2)
+    same = f.predict(depth.astype(np.float32) / 1000, (Kbig[0, 0], Kbig[1, 1], Kbig[0, 2], Kbig[1, 2]), stride=2)
     assert np.allclose(same[0]["t"], best["t"]) and same[0]["score"] == best["score"]
     from isa.camera import Intrinsics
 
     intr = Intrinsics.from_K(Kbig, 320, 240)
-    assert _core.predict(f, depth, intr, stride=2)[0]["score"] == best["score"]
+    assert f.predict(depth, intr, stride=2)[0]["score"] == best["score"]
     # deterministic across thread counts
-    one = _core.predict(f, depth, Kbig, stride=2, n_threads=1)
+    one = f.predict(depth, Kbig, stride=2, n_threads=1)
     assert all(np.array_equal(a["t"], b["t"]) and a["score"] == b["score"] for a, b in zip(one, hyps))
 
 
 def test_predict_equals_find_modes_of_image_votes(trained):
     f = trained[0]
     depth, _ = plate()
-    v = _core.image_votes(f, depth, K, stride=3)
+    v = f.image_votes(depth, K, stride=3)
     n = len(v["weight"])
     assert v["position"].shape == (n, 3) and v["rotation"].shape == (n, 4) and v["pixel"].shape == (n, 2)
     assert v["position"].dtype == np.float32 and v["pixel"].dtype == np.int32 and v["tree"].dtype == np.int32
     assert (v["pixel"] % 3 == 0).all() and set(np.unique(v["tree"])) == {0, 1, 2}
     assert v["n_parts"] == int((depth[::3, ::3] > 0).sum())
     assert np.all(v["weight"] <= 1 / 3 + 1e-7)
-    a = _core.predict(f, depth, K, stride=3, max_hypotheses=3)
+    a = f.predict(depth, K, stride=3, max_hypotheses=3)
     b = _core.find_modes(v["position"], v["rotation"], v["weight"], max_hypotheses=3)
     assert len(a) == len(b) <= 3
     for x, y in zip(a, b):
@@ -118,23 +117,21 @@ def test_errors_name_the_argument(trained):
     f = trained[0]
     depth, _ = plate()
     with pytest.raises(InvalidParameterError, match="stride"):
-        _core.predict(f, depth, K, stride=0)
+        f.predict(depth, K, stride=0)
     with pytest.raises(InvalidParameterError, match="bandwdith"):
-        _core.predict(f, depth, K, position_bandwdith=0.1)
+        f.predict(depth, K, position_bandwdith=0.1)
     with pytest.raises(InvalidParameterError, match="position_bandwidth"):
         _core.find_modes(np.zeros((1, 3), np.float32), np.ones((1, 4), np.float32), position_bandwidth=-1.0)
     with pytest.raises(InvalidInputError, match="depth"):
-        _core.predict(f, depth.astype(np.int32), K)
+        f.predict(depth.astype(np.int32), K)
     with pytest.raises(InvalidInputError, match="depth"):
-        _core.predict(f, depth[None], K)
+        f.predict(depth[None], K)
     with pytest.raises(InvalidInputError, match="K"):
-        _core.predict(f, depth, "K")
+        f.predict(depth, "K")
     with pytest.raises(InvalidInputError, match="focal"):
-        _core.predict(f, depth, (0.0, 1.0, 2.0, 3.0))
+        f.predict(depth, (0.0, 1.0, 2.0, 3.0))
     with pytest.raises(InvalidInputError, match="not fitted"):
-        _core.predict(_core.Forest(), depth, K)
-    with pytest.raises(InvalidInputError, match="forest"):
-        _core.predict(object(), depth, K)
+        _core.Forest().predict(depth, K)
     with pytest.raises(InvalidInputError, match="rotations"):
         _core.find_modes(np.zeros((2, 3), np.float32), np.ones((3, 4), np.float32))
 

@@ -206,37 +206,6 @@ def depth_features(
 #: Version of the training-set (.isat) file format written by ``write_trainset``.
 TRAINSET_FORMAT_VERSION: int
 
-def predict(
-    forest: Forest | Any,
-    depth: npt.NDArray[np.uint16] | npt.NDArray[np.float32] | npt.NDArray[np.float64],
-    K: npt.ArrayLike | Any,
-    *,
-    n_threads: int | None = None,
-    **params: Any,
-) -> list[Hypothesis]:
-    """Ranked 6D pose hypotheses of the objects in a whole depth image (paper Eq. 12-13): parts
-    on a ``stride`` grid of valid pixels go down every tree, each leaf vote (part's 3D point +
-    offset, rotation, weight / n_trees) is accumulated, modes are found by mean-shift in 3D then
-    on SO(3). ``forest``: ``_core.Forest`` or ``isa.forest.Forest``; ``depth`` (H, W) uint16 mm or
-    float metres (0 = missing); ``K`` a 3x3 matrix, (fx, fy, cx, cy) or ``isa.camera.Intrinsics``.
-    Parameters not given come from the model's ``predict_defaults``.
-    Each hypothesis, best first: ``R`` (3, 3), ``t`` (3,) metres (SSC in the camera frame,
-    X_cam = R X_obj + t), ``quaternion`` (w, x, y, z; w >= 0), ``score`` (joint kernel density),
-    ``support`` (votes in both kernels), ``position_score``, ``position_support``. GIL released;
-    deterministic for any ``n_threads`` (None = the forest's setting)."""
-
-def image_votes(
-    forest: Forest | Any,
-    depth: npt.NDArray[np.uint16] | npt.NDArray[np.float32] | npt.NDArray[np.float64],
-    K: npt.ArrayLike | Any,
-    *,
-    n_threads: int | None = None,
-    **params: Any,
-) -> dict[str, Any]:
-    """Every vote ``predict`` would aggregate (for plots): ``position`` (V, 3) float32 metres,
-    ``rotation`` (V, 4) float32, ``weight`` (V,) float32, ``pixel`` (V, 2) int32 (u, v) of the
-    casting part, ``tree`` (V,) int32, ``n_parts`` int."""
-
 def find_modes(
     positions: npt.NDArray[np.float32],
     rotations: npt.NDArray[np.float32],

@@ -14,15 +14,12 @@ import json
 import pathlib
 import sys
 
-import numpy as np
-
 HERE = pathlib.Path(__file__).parent
 sys.path.insert(0, str(HERE.parent))
 
-from test_vote import K, plate, plate_training_set  # noqa: E402
-
 from isa import _core  # noqa: E402
 from isa.forest import Forest, ForestParams  # noqa: E402
+from test_vote import K, plate, plate_training_set  # noqa: E402
 
 DEFAULTS = {"stride": 3, "position_bandwidth": 0.06, "max_hypotheses": 2}
 

@@ -167,7 +167,17 @@ pub struct RawTargets<'a> {
     pub node_offsets: Option<(&'a [f32], usize)>,
 }
 
-impl RawTargets<'_> {
+impl<'a> RawTargets<'a> {
+    /// The pose targets alone (a Q1 training set: no privileged data).
+    pub fn pose(offsets: &'a [f32], rotations: &'a [f32]) -> Self {
+        RawTargets {
+            offsets,
+            rotations,
+            link_angles: None,
+            node_offsets: None,
+        }
+    }
+
     pub fn n(&self) -> usize {
         self.offsets.len() / 3
     }
@@ -828,12 +838,7 @@ mod tests {
             rot.extend_from_slice(&[1.0, 0.0, 0.0, 0.0]);
             mask.push(left);
         }
-        let raw = RawTargets {
-            offsets: &off,
-            rotations: &rot,
-            link_angles: None,
-            node_offsets: None,
-        };
+        let raw = RawTargets::pose(&off, &rot);
         let g = term_gains(&raw, &mask, 1e-4, 0).unwrap();
         assert!(g[0] > 1.0, "{g:?}");
         let rnd: Vec<bool> = (0..n).map(|i| (i / 2) % 2 == 0).collect();

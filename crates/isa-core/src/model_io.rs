@@ -389,12 +389,7 @@ mod tests {
         let data = TrainingSet {
             store: &store,
             parts: &parts,
-            targets: RawTargets {
-                offsets: &off,
-                rotations: &rot,
-                link_angles: None,
-                node_offsets: None,
-            },
+            targets: RawTargets::pose(&off, &rot),
         };
         let p = ForestParams {
             n_trees: 2,

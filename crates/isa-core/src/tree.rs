@@ -43,15 +43,15 @@ pub struct Node {
 }
 
 impl Node {
-    /// A leaf node naming leaf `l` (its feature and threshold unused).
-    pub fn leaf(l: u32) -> Node {
+    /// A leaf (feature and threshold unused) whose votes are leaf `index`'s.
+    pub const fn leaf(index: u32) -> Node {
         Node {
             feature: Feature {
                 u: [0.0; 2],
                 v: [0.0; 2],
             },
             threshold: 0.0,
-            child: l,
+            child: index,
             is_leaf: true,
         }
     }

@@ -1,5 +1,5 @@
-//! Inference bindings: whole-image `predict` / `image_votes` (also methods of `Forest`), and
-//! `find_modes` on raw votes.
+//! Inference bindings: the whole-image calls behind `Forest.predict` / `Forest.image_votes`,
+//! and `find_modes` on raw votes.
 //!
 //! Keyword parameters of `predict` / `image_votes` are the fields of
 //! `isa_core::PredictParams` with the vote keys flat (`stride`, `min_depth`, `max_depth`,
@@ -7,8 +7,8 @@
 //! `isa._core.PREDICT_DEFAULTS`), overlaid on the model's inference defaults by the core;
 //! unknown names raise `InvalidParameterError`.
 
-use numpy::PyUntypedArray;
 use numpy::prelude::*;
+use numpy::PyUntypedArray;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
@@ -19,8 +19,8 @@ use crate::arrays::{array, as_slice, check_finite, describe, given, rows, vector
 use crate::errors::{input_err, to_py};
 use crate::forest::PyForest;
 use crate::hypothesis;
-use crate::scalars;
 use crate::params::{kwargs_json, predict_params, KWARGS};
+use crate::scalars;
 
 /// Intrinsics from an object with `fx, fy, cx, cy` attributes (e.g. `isa.camera.Intrinsics`),
 /// a 3x3 camera matrix, or a sequence `(fx, fy, cx, cy)`.
@@ -96,57 +96,40 @@ fn depth_mm(depth: &Bound<'_, PyAny>) -> PyResult<(Vec<u16>, usize, usize)> {
     Ok((px, w, h))
 }
 
-/// The `_core.Forest` behind `obj`: itself, or its `.core` (an `isa.forest.Forest`).
-fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyForest>> {
-    if let Ok(f) = obj.cast::<PyForest>() {
-        return Ok(f.clone());
-    }
-    if let Ok(c) = obj.getattr("core") {
-        if let Ok(f) = c.cast::<PyForest>() {
-            return Ok(f.clone());
-        }
-    }
-    Err(input_err(format!(
-        "forest: expected an isa.forest.Forest or isa._core.Forest, got {}",
-        describe(obj)
-    )))
-}
-
 /// The call's `n_threads`, else the forest's setting.
 fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
     Ok(scalars::n_threads(n_threads)?.or(forest.get().threads()))
 }
 
-/// What one whole-image call needs, converted and checked: threads, parameters (the model's
-/// defaults overlaid by the keyword arguments), intrinsics, depth in mm with its size.
-struct ImageCall {
-    threads: Option<usize>,
-    params: Valid<PredictParams>,
-    k: Intrinsics,
-    px: Vec<u16>,
-    width: usize,
-    height: usize,
-}
-
-fn image_call(
-    forest: &Bound<'_, PyForest>,
-    depth: &Bound<'_, PyAny>,
-    k: &Bound<'_, PyAny>,
-    n_threads: Option<&Bound<'_, PyAny>>,
-    params: Option<&Bound<'_, PyDict>>,
-) -> PyResult<ImageCall> {
+/// Converts and checks one whole-image call (threads, the model's inference defaults overlaid by
+/// the keyword arguments, intrinsics, depth in mm) and runs `run` on it without the GIL, on the
+/// forest's current trees (another thread may refit it meanwhile).
+fn on_image<'py, T: Send>(
+    forest: &Bound<'py, PyForest>,
+    depth: &Bound<'py, PyAny>,
+    k: &Bound<'py, PyAny>,
+    n_threads: Option<&Bound<'py, PyAny>>,
+    params: Option<&Bound<'py, PyDict>>,
+    run: impl FnOnce(
+            &isa_core::Forest,
+            &DepthImage<'_>,
+            &Intrinsics,
+            &Valid<PredictParams>,
+        ) -> isa_core::Result<T>
+        + Send,
+) -> PyResult<T> {
     let threads = threads_of(forest, n_threads)?;
-    let params = predict_params(&forest.get().core()?.predict_defaults, params)?;
+    let f = forest.get().core()?;
+    let params = predict_params(&f.predict_defaults, params)?;
     let k = intrinsics(k)?;
     let (px, width, height) = depth_mm(depth)?;
-    Ok(ImageCall {
-        threads,
-        params,
-        k,
-        px,
-        width,
-        height,
-    })
+    forest
+        .py()
+        .detach(|| {
+            let img = DepthImage::new(&px, width, height)?;
+            isa_core::forest::with_threads(threads, || run(&f, &img, &k, &params))?
+        })
+        .map_err(to_py)
 }
 
 /// Ranked hypotheses of `forest` on a whole depth image, with the model's inference defaults
@@ -158,18 +141,8 @@ pub fn predict_with<'py>(
     n_threads: Option<&Bound<'py, PyAny>>,
     params: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyList>> {
-    let py = forest.py();
-    let c = image_call(forest, depth, k, n_threads, params)?;
-    let f = forest.get().core()?;
-    let hyps = py
-        .detach(|| {
-            let img = DepthImage::new(&c.px, c.width, c.height)?;
-            isa_core::forest::with_threads(c.threads, || {
-                core_vote::predict(&f, &img, &c.k, &c.params)
-            })?
-        })
-        .map_err(to_py)?;
-    hypothesis::to_list(py, hyps)
+    let hyps = on_image(forest, depth, k, n_threads, params, core_vote::predict)?;
+    hypothesis::to_list(forest.py(), hyps)
 }
 
 /// Every vote of a whole depth image (shared by `Forest.image_votes` and `image_votes`).
@@ -181,61 +154,29 @@ pub fn image_votes_with<'py>(
     params: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = forest.py();
-    let c = image_call(forest, depth, k, n_threads, params)?;
-    let f = forest.get().core()?;
-    let iv = py
-        .detach(|| {
-            let img = DepthImage::new(&c.px, c.width, c.height)?;
-            isa_core::forest::with_threads(c.threads, || {
-                core_vote::image_votes(&f, &img, &c.k, &c.params)
-            })?
-        })
-        .map_err(to_py)?;
+    let iv = on_image(forest, depth, k, n_threads, params, core_vote::image_votes)?;
     let d = PyDict::new(py);
     d.set_item("position", rows(py, iv.votes.iter().map(|v| v.position)))?;
     d.set_item("rotation", rows(py, iv.votes.iter().map(|v| v.rotation)))?;
-    d.set_item("weight", vector(py, iv.votes.iter().map(|v| v.weight).collect()))?;
+    d.set_item(
+        "weight",
+        vector(py, iv.votes.iter().map(|v| v.weight).collect()),
+    )?;
     d.set_item(
         "pixel",
         rows(py, iv.pixels.iter().map(|p| [p[0] as i32, p[1] as i32])),
     )?;
-    d.set_item("tree", vector(py, iv.trees.iter().map(|t| *t as i32).collect()))?;
+    d.set_item(
+        "tree",
+        vector(py, iv.trees.iter().map(|t| *t as i32).collect()),
+    )?;
     d.set_item("n_parts", iv.n_parts)?;
     Ok(d)
 }
 
-/// Ranked 6D pose hypotheses of the objects in a whole depth image (paper Eq. 12-13):
-/// `forest.predict(depth, K, **params)` (see `Forest.predict`).
-#[pyfunction]
-#[pyo3(signature = (forest, depth, K, *, n_threads=None, **params))]
-#[allow(non_snake_case)]
-pub fn predict<'py>(
-    forest: &Bound<'py, PyAny>,
-    depth: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
-    n_threads: Option<&Bound<'py, PyAny>>,
-    params: Option<&Bound<'py, PyDict>>,
-) -> PyResult<Bound<'py, PyList>> {
-    predict_with(&core_forest(forest)?, depth, K, n_threads, params)
-}
-
-/// Every vote of a whole depth image (for plots): `forest.image_votes(depth, K, **params)`.
-#[pyfunction]
-#[pyo3(signature = (forest, depth, K, *, n_threads=None, **params))]
-#[allow(non_snake_case)]
-pub fn image_votes<'py>(
-    forest: &Bound<'py, PyAny>,
-    depth: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
-    n_threads: Option<&Bound<'py, PyAny>>,
-    params: Option<&Bound<'py, PyDict>>,
-) -> PyResult<Bound<'py, PyDict>> {
-    image_votes_with(&core_forest(forest)?, depth, K, n_threads, params)
-}
-
 /// Mode finding on given votes: `positions` (V, 3) float32 metres, `rotations` (V, 4) float32
 /// (w, x, y, z, any sign), `weights` (V,) float32 or None (all 1). Keyword parameters: those of
-/// `VoteParams`. Returns hypotheses as `predict` does.
+/// `VoteParams`. Returns hypotheses as `Forest.predict` does.
 #[pyfunction]
 #[pyo3(signature = (positions, rotations, weights=None, *, n_threads=None, **params))]
 pub fn find_modes<'py>(
@@ -277,12 +218,13 @@ pub fn find_modes<'py>(
 /// same as `PREDICT_DEFAULTS`.
 #[pyfunction]
 pub fn default_predict_params(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
-    crate::params::json_to_py(py, &serde_json::Value::Object(PredictParams::default().to_flat_json()))
+    crate::params::json_to_py(
+        py,
+        &serde_json::Value::Object(PredictParams::default().to_flat_json()),
+    )
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(predict, m)?)?;
-    m.add_function(wrap_pyfunction!(image_votes, m)?)?;
     m.add_function(wrap_pyfunction!(find_modes, m)?)?;
     m.add_function(wrap_pyfunction!(default_predict_params, m)?)?;
     Ok(())

@@ -101,9 +101,7 @@ def weighted_predict(forest, fg: LeafForeground | None, depth: np.ndarray, intri
     if fg is not None:
         leaves = forest.apply([img], parts)
         w = w * fg.probs[v["tree"], leaves[v["part"], v["tree"]]] ** power
-    meta = forest.metadata
-    defaults = meta.get("predict_defaults", {}) if isinstance(meta, dict) else {}
-    kw = {**defaults, **params}
+    kw = {**forest.predict_defaults, **params}
     for k in ("stride", "min_depth", "max_depth", "min_leaf_weight"):
         kw.pop(k, None)
     return _core.find_modes(np.ascontiguousarray(pos), np.ascontiguousarray(v["rotation"]),

@@ -26,10 +26,13 @@ import numpy as np
 import trimesh
 
 from isa.camera import KINECT_V1, Intrinsics
-from isa.exceptions import UsageError
+from isa.exceptions import MissingDependencyError, UsageError
 
 # OpenCV camera (y down, z forward) -> OpenGL camera (y up, z backward).
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+
+#: Debian packages that headless rendering needs (scripts/setup.sh installs them).
+HEADLESS_GL_APT = ("libegl1", "libegl-mesa0", "libgl1-mesa-dri", "libgl1", "libxrender1", "libosmesa6")
 
 _pyrender = None
 _gl = None  # the process's shared pyrender.OffscreenRenderer
@@ -40,8 +43,18 @@ def _import_pyrender():
     global _pyrender
     if _pyrender is None:
         os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-        import pyrender
-        import pyrender.renderer as prr
+        try:
+            import pyrender
+            import pyrender.renderer as prr
+        except ImportError as e:
+            raise MissingDependencyError(
+                f"rendering needs pyrender ({e}): pip install 'isa[render]' (or bash scripts/setup.sh), "
+                "and on Debian/Ubuntu the headless OpenGL libraries: "
+                f"apt-get install {' '.join(HEADLESS_GL_APT)}") from e
+        except OSError as e:  # a system library (libEGL, libGL, libOSMesa) failed to load
+            raise MissingDependencyError(
+                f"rendering could not load OpenGL ({e}); on Debian/Ubuntu: apt-get install {' '.join(HEADLESS_GL_APT)} "
+                f"(PYOPENGL_PLATFORM={os.environ['PYOPENGL_PLATFORM']}; 'osmesa' is the fallback)") from e
 
         if not getattr(prr, "_isa_single_sample", False):
             real = prr.glRenderbufferStorageMultisample

@@ -40,7 +40,10 @@ pub(crate) enum FlatTree {
 /// Keyed by each tree's node array (address and length): a forest whose `trees` are replaced or
 /// resized is prepared again. Equality, `Debug` and `Clone` ignore it (a clone prepares its own).
 #[derive(Default)]
-pub(crate) struct FlatCache(std::sync::OnceLock<(Vec<(usize, usize)>, Option<Vec<FlatTree>>)>);
+pub(crate) struct FlatCache(std::sync::OnceLock<Prepared>);
+
+/// The node arrays' (address, length) keys, and the prepared trees.
+type Prepared = (Vec<(usize, usize)>, Option<Vec<FlatTree>>);
 
 impl FlatCache {
     /// The prepared trees of `trees` (`None`: no AVX2, or a tree unfit for the fast path).

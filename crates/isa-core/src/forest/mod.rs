@@ -284,12 +284,7 @@ pub(crate) mod tests {
         TrainingSet {
             store,
             parts,
-            targets: RawTargets {
-                offsets: off,
-                rotations: rot,
-                link_angles: None,
-                node_offsets: None,
-            },
+            targets: RawTargets::pose(off, rot),
         }
     }
 
@@ -361,12 +356,7 @@ pub(crate) mod tests {
     #[test]
     fn bad_inputs_are_errors() {
         let (store, parts, off, rot) = toy(1);
-        let raw = RawTargets {
-            offsets: &off,
-            rotations: &rot,
-            link_angles: None,
-            node_offsets: None,
-        };
+        let raw = RawTargets::pose(&off, &rot);
         let mut bad_parts = parts.clone();
         bad_parts[3] = [5, 0, 0];
         let data = TrainingSet {

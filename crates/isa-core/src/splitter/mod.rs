@@ -299,12 +299,7 @@ mod tests {
                 (off[3 * (i % n)] * 50.0 * (i / n) as f32 + rng.random_range(-9.0..9.0)).round()
             })
             .collect();
-        let raw = RawTargets {
-            offsets: &off,
-            rotations: &rot,
-            link_angles: None,
-            node_offsets: None,
-        };
+        let raw = RawTargets::pose(&off, &rot);
         let t = build_targets(&raw, Quality::Q1, 0).unwrap();
         let crit = Criterion::new(t.layout.clone(), 1e-4);
         let subset: Vec<u32> = (0..n as u32).collect();

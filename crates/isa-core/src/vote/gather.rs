@@ -29,6 +29,9 @@ pub(super) fn gather_chunk(
         let p = v.position;
         for (b, id) in blocks.iter().zip(ids) {
             let mut mask = 0u32;
+            // One lane index across the block's three coordinate arrays: the shape that the
+            // portable twin of the AVX2 path is compared with.
+            #[allow(clippy::needless_range_loop)]
             for l in 0..B {
                 let (dx, dy, dz) = (p[0] - b[0][l], p[1] - b[1][l], p[2] - b[2][l]);
                 mask |= u32::from(dx * dx + dy * dy + dz * dz < r2) << l;

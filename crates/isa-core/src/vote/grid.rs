@@ -109,13 +109,14 @@ impl Grid {
             let cell = &mut cells[c as usize];
             let w = f64::from(v.weight);
             cell.weight += w;
-            for k in 0..3 {
-                cell.centroid[k] += w * p[k];
+            for (c, pk) in cell.centroid.iter_mut().zip(p) {
+                *c += w * pk;
             }
         }
         for cell in &mut cells {
-            for k in 0..3 {
-                cell.centroid[k] /= cell.weight;
+            let w = cell.weight;
+            for c in &mut cell.centroid {
+                *c /= w;
             }
         }
         Grid {

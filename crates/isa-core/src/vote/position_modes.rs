@@ -38,8 +38,8 @@ pub(super) fn coarse_mean_shift(
                 let g = c.weight * u;
                 ws += g;
                 density += g * u;
-                for k in 0..3 {
-                    acc[k] += g * c.centroid[k];
+                for (a, ck) in acc.iter_mut().zip(c.centroid) {
+                    *a += g * ck;
                 }
             }
         });

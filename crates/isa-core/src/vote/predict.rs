@@ -364,7 +364,6 @@ mod tests {
     use super::super::{quat_angle, synth};
     use super::*;
     use crate::criterion::RawTargets;
-    use crate::features::Feature;
     use crate::forest::TrainingSet;
     use crate::params::{ForestParams, Quality};
     use crate::tree::{Node, Tree, Vote};
@@ -393,7 +392,7 @@ mod tests {
     #[test]
     fn extreme_models_predict_without_overflow() {
         use crate::criterion::MAX_TARGET_OFFSET;
-        use crate::features::MAX_FEATURE_OFFSET;
+        use crate::features::{Feature, MAX_FEATURE_OFFSET};
         let make = |m: f32, o: f32| {
             let vote = |s: f32| Vote {
                 weight: 1.0,
@@ -517,10 +516,8 @@ mod tests {
             } else {
                 leaf_votes[1]
             };
-            for a in 0..3 {
-                assert!(
-                    (f64::from(vote.position[a]) - (x[a] + f64::from(lv.offset[a]))).abs() < 1e-5
-                );
+            for ((p, xa), o) in vote.position.iter().zip(x).zip(lv.offset) {
+                assert!((f64::from(*p) - (xa + f64::from(o))).abs() < 1e-5);
             }
             assert_eq!(vote.weight, lv.weight / 4.0);
         }
@@ -586,6 +583,7 @@ mod tests {
     }
 
     /// Trains a small forest on views of the synthetic chair; returns it with the intrinsics.
+    #[allow(clippy::type_complexity)] // a test fixture: forest, camera and the (R, t) of its views
     pub(crate) fn chair_forest() -> (Forest, Intrinsics, Vec<([[f64; 3]; 3], [f64; 3])>) {
         let k = Intrinsics {
             fx: 200.0,
@@ -623,12 +621,7 @@ mod tests {
             min_samples_leaf: 3,
             ..Default::default()
         };
-        let targets = RawTargets {
-            offsets: &offsets,
-            rotations: &rotations,
-            link_angles: None,
-            node_offsets: None,
-        };
+        let targets = RawTargets::pose(&offsets, &rotations);
         let data = TrainingSet {
             store: &store,
             parts: &parts,
