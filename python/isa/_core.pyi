@@ -101,7 +101,7 @@ class Forest:
         rotations: npt.NDArray[np.float32],
         link_angles: npt.NDArray[np.float32] | None = None,
         node_offsets: npt.NDArray[np.float32] | None = None,
-        metadata: str = "{}",
+        metadata: str = ...,  # "{}"
         on_tree: Callable[[int], object] | None = None,
         predict_defaults: dict[str, Any] | None = None,
     ) -> None:
