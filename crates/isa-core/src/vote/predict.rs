@@ -560,8 +560,14 @@ mod tests {
             ..Default::default()
         };
         assert!(p.check().unwrap_err().to_string().contains("max_depth"));
-        // No trees, or no valid pixels: no hypotheses.
+        // A principal point outside the image: the intrinsics are not this image's.
         assert!(predict(&forest, &img, &K, &Valid::default())
+            .unwrap_err()
+            .to_string()
+            .contains("principal point"));
+        // No trees, or no valid pixels: no hypotheses.
+        let k = Intrinsics { cx: 2.0, cy: 1.5, ..K };
+        assert!(predict(&forest, &img, &k, &Valid::default())
             .unwrap()
             .is_empty());
         assert!(
