@@ -26,7 +26,7 @@ fn forest() -> &'static Forest {
             parts: &parts,
             targets: RawTargets { offsets: &offsets, rotations: &rotations, link_angles: None, node_offsets: None },
         };
-        let p = ForestParams { n_trees: 2, max_depth: 6, n_candidates: 20, ..Default::default() };
+        let p = ForestParams { n_trees: 2, max_depth: 6, n_candidates: 20, quality: isa_core::Quality::Q1, ..Default::default() };
         Forest::fit(&p.check().unwrap(), &data, Default::default(), Some(1)).unwrap()
     })
 }

@@ -34,6 +34,10 @@ except ImportError:  # pragma: no cover - not on Linux/macOS
 #: What every temporary name holds after the target's name (the Rust core's ``TEMP_MARK``).
 TEMP_MARK = ".isa-tmp-"
 
+# Read once: os.umask can only be read by setting it, which would race other threads' file creation.
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
 _BY_ERRNO = {_errno.ENOENT: IsaFileNotFoundError, _errno.EACCES: IsaPermissionError,
              _errno.EPERM: IsaPermissionError, _errno.EISDIR: IsaIsADirectoryError}
 
@@ -63,9 +67,7 @@ def _locked_temp(path: Path) -> tuple[int, str]:
             fcntl.flock(fd, fcntl.LOCK_EX)
         if _same_file(tmp, fd):
             # As open() would create it (the umask applies), not mkstemp's private 0600.
-            umask = os.umask(0)
-            os.umask(umask)
-            os.fchmod(fd, 0o666 & ~umask)
+            os.fchmod(fd, 0o666 & ~_UMASK)
             return fd, tmp
         os.close(fd)  # removed by a cleaner in the instant before the lock: take another name
 

@@ -605,7 +605,8 @@ fn number_flags_name_themselves_and_negative_numbers_parse() {
     write_png(&png, 160, 120, vec![1500; 160 * 120]);
     let p = png.to_str().unwrap();
     for (flag, v) in [("--position-bandwidth", "nan"), ("--nms-radius", "inf"), ("--min-depth", "-inf")] {
-        let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", flag, v]);
+        let arg = format!("{flag}={v}");
+        let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", &arg]);
         assert_eq!(o.status.code(), Some(2), "{flag} {v}: {}", stderr(&o));
         assert!(stderr(&o).contains(flag) && stderr(&o).contains("finite"), "{}", stderr(&o));
     }

@@ -362,7 +362,14 @@ pub(crate) mod tests {
             store,
             parts: vec![[0, 1, 0], [0, 2, 1], [1, 0, 0], [1, 1, 1], [2, 0, 0]],
             offsets: (0..15).map(|k| k as f32 * 0.1).collect(),
-            rotations: (0..5).flat_map(|k| [1.0, k as f32, 0.0, 0.5]).collect(),
+            // Unit quaternions (w, x, y, z) that differ by part.
+            rotations: (0..5)
+                .flat_map(|k| {
+                    let (w, x, z) = (1.0f32, k as f32, 0.5f32);
+                    let n = (w * w + x * x + z * z).sqrt();
+                    [w / n, x / n, 0.0, z / n]
+                })
+                .collect(),
             link_angles: Some(((0..10).map(|k| k as f32 * 0.3).collect(), 2)),
             node_offsets: Some(((0..15).map(|k| k as f32 - 7.0).collect(), 3)),
             metadata: "{}".into(),

@@ -372,6 +372,14 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let mut g = |lo: f32, hi: f32, k: usize| -> Vec<f32> { (0..k).map(|_| rng.random_range(lo..hi)).collect() };
         let (off, rot, z, e) = (g(-1.0, 1.0, 3 * n), g(-1.0, 1.0, 4 * n), g(-1.0, 1.0, 2 * n), g(-0.01, 0.01, 11 * n));
+        // Unit quaternions, as every training set's rotations must be.
+        let rot: Vec<f32> = rot
+            .chunks_exact(4)
+            .flat_map(|q| {
+                let norm = q.iter().map(|x| x * x).sum::<f32>().sqrt();
+                q.iter().map(move |x| x / norm).collect::<Vec<_>>()
+            })
+            .collect();
         // Wide targets driven by two factors of distinct strength, so the top two principal
         // directions are well separated (PCA is then unique up to sign).
         let la: Vec<f32> = (0..5 * n).map(|k| (k % 5 + 1) as f32 * (0.3 * z[2 * (k / 5)] + 0.1 * z[2 * (k / 5) + 1]) + e[k]).collect();

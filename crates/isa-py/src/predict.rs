@@ -19,8 +19,8 @@ use crate::arrays::{array, as_slice, check_finite, describe, given, rows, vector
 use crate::errors::{input_err, to_py};
 use crate::forest::PyForest;
 use crate::hypothesis;
-use crate::scalars;
 use crate::params::{kwargs_json, predict_params, KWARGS};
+use crate::scalars;
 
 /// Intrinsics from an object with `fx, fy, cx, cy` attributes (e.g. `isa.camera.Intrinsics`),
 /// a 3x3 camera matrix, or a sequence `(fx, fy, cx, cy)`.
@@ -118,7 +118,8 @@ fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<&Bound<'_, PyAny>>
 }
 
 /// Converts and checks one whole-image call (threads, the model's inference defaults overlaid by
-/// the keyword arguments, intrinsics, depth in mm) and runs `run` on it without the GIL.
+/// the keyword arguments, intrinsics, depth in mm) and runs `run` on it without the GIL, on the
+/// forest's current trees (another thread may refit it meanwhile).
 fn on_image<'py, T: Send>(
     forest: &Bound<'py, PyForest>,
     depth: &Bound<'py, PyAny>,
@@ -189,6 +190,9 @@ pub fn image_votes_with<'py>(
     Ok(d)
 }
 
+/// Mode finding on given votes: `positions` (V, 3) float32 metres, `rotations` (V, 4) float32
+/// (w, x, y, z, any sign), `weights` (V,) float32 or None (all 1). Keyword parameters: those of
+/// `VoteParams`. Returns hypotheses as `Forest.predict` does.
 #[pyfunction]
 #[pyo3(signature = (positions, rotations, weights=None, *, n_threads=None, **params))]
 pub fn find_modes<'py>(

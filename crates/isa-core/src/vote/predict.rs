@@ -363,7 +363,6 @@ pub fn predict(
 mod tests {
     use super::super::{quat_angle, synth};
     use super::*;
-    use crate::features::Feature;
     use crate::criterion::RawTargets;
     use crate::forest::TrainingSet;
     use crate::params::{ForestParams, Quality};
@@ -393,7 +392,7 @@ mod tests {
     #[test]
     fn extreme_models_predict_without_overflow() {
         use crate::criterion::MAX_TARGET_OFFSET;
-        use crate::features::MAX_FEATURE_OFFSET;
+        use crate::features::{Feature, MAX_FEATURE_OFFSET};
         let make = |m: f32, o: f32| {
             let vote = |s: f32| Vote {
                 weight: 1.0,
@@ -561,8 +560,14 @@ mod tests {
             ..Default::default()
         };
         assert!(p.check().unwrap_err().to_string().contains("max_depth"));
-        // No trees, or no valid pixels: no hypotheses.
+        // A principal point outside the image: the intrinsics are not this image's.
         assert!(predict(&forest, &img, &K, &Valid::default())
+            .unwrap_err()
+            .to_string()
+            .contains("principal point"));
+        // No trees, or no valid pixels: no hypotheses.
+        let k = Intrinsics { cx: 2.0, cy: 1.5, ..K };
+        assert!(predict(&forest, &img, &k, &Valid::default())
             .unwrap()
             .is_empty());
         assert!(
