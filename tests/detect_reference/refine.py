@@ -41,15 +41,7 @@ def _point_to_plane_step(p: np.ndarray, q: np.ndarray, n: np.ndarray) -> tuple[f
 def refine_pose(points_up: np.ndarray, intrinsics: Intrinsics, R: np.ndarray, t: np.ndarray, shape_points: np.ndarray,
                 bounds: np.ndarray, R_gravity: np.ndarray, params: RefineParams = RefineParams(),
                 shape_normals: np.ndarray | None = None) -> Refinement:
-    """Refine the pose ``(R, t)`` (object to camera) of a shape (object-frame ``shape_points``
-    (N, 3), axis-aligned ``bounds`` (2, 3)) on the observed points ``points_up`` (M, 3) in the
-    upright frame (``R_gravity`` @ camera points, :func:`upright_points`; the floor left out, so
-    that it does not pull the object down).
-    With ``shape_normals`` (N, 3) each step is point-to-plane (converges on the surface rather
-    than on the nearest sample), else point-to-point.
-
-    ``R_gravity`` is camera to upright (z up).
-    """
+    """numpy reference of :func:`isa.detection.refine.refine_pose` (same arguments and result)."""
     Rg = np.asarray(R_gravity, dtype=float).reshape(3, 3)
     R0 = np.asarray(R, dtype=float).reshape(3, 3)
     t0 = np.asarray(t, dtype=float).reshape(3)

@@ -8,27 +8,18 @@ import math
 import numpy as np
 
 from isa.camera import Intrinsics
+from isa.detection import verify
 from isa.detection.verify import Verification, VerifyParams
-from isa.exceptions import InvalidValueError
 
 
-class DepthEvidence:
-    """A depth frame prepared for verification: each shape cell is compared with the observed
-    depth on a 5 x 5 grid of pixels spanning ``lateral`` metres around its pixel (computed once
-    per frame, shared by every hypothesis and category). ``planes`` (H, W) bool marks floor and
-    wall pixels (:func:`isa.detection.planes.remove_planes`' ``removed``): no object stands behind
-    a wall or under the floor, so a plane in front of a shape cell refutes it, and a shape surface
-    lying on a plane is no evidence for the object."""
+class DepthEvidence(verify.DepthEvidence):
+    """The package's frame (its checks on the planes mask), compared on a 5 x 5 grid of pixels
+    spanning ``lateral`` metres around each shape cell's pixel."""
 
     GRID = 5
 
     def __init__(self, depth: np.ndarray, intrinsics: Intrinsics, planes: np.ndarray | None = None):
-        self.depth = np.ascontiguousarray(depth, dtype=np.float32)
-        self.intrinsics = intrinsics
-        if planes is not None and np.shape(planes) != self.depth.shape:
-            raise InvalidValueError(f"DepthEvidence: planes mask {np.shape(planes)} does not match the depth "
-                             f"{self.depth.shape}")
-        self.planes = None if planes is None else np.asarray(planes, dtype=bool)
+        super().__init__(depth, intrinsics, planes)
         g = np.arange(self.GRID) - self.GRID // 2
         self._offsets = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)  # (K, 2) unit steps
 

@@ -448,6 +448,16 @@ mod tests {
     use crate::forest::TrainingSet;
     use proptest::prelude::*;
 
+    /// A version-1 file of `f`'s trees with metadata JSON `raw` (version 1 had no typed defaults).
+    fn version_1_file(f: &Forest, raw: &str) -> Vec<u8> {
+        let mut p = Vec::new();
+        put_str(&mut p, "0.0.1");
+        put_str(&mut p, &f.params.to_json());
+        put_str(&mut p, raw);
+        encode_trees(&mut p, f);
+        seal(1, &p)
+    }
+
     fn small_forest() -> Forest {
         let (store, parts, off, rot) = toy(1);
         let data = TrainingSet {
@@ -555,12 +565,7 @@ mod tests {
         // category must still be read, the NaN read as null, a "NaN" inside a string kept.
         let f = small_forest();
         let raw = r#"{"category": "bed", "box": {"category": "bed", "size": [1.0, 2.0, 0.5], "ssc_offset": [0.0, 0.1, -0.2], "n_instances": 2}, "ssc": {"d": [0.2, NaN, -Infinity, Infinity], "note": "NaN \" Infinity"}}"#;
-        let mut p = Vec::new();
-        put_str(&mut p, "0.0.1");
-        put_str(&mut p, &f.params.to_json());
-        put_str(&mut p, raw);
-        encode_trees(&mut p, &f);
-        let g = decode(&seal(1, &p), "old").unwrap();
+        let g = decode(&version_1_file(&f, raw), "old").unwrap();
         assert!(g.metadata.extra.get("legacy_metadata").is_none());
         assert_eq!(g.metadata.category.as_deref(), Some("bed"));
         assert_eq!(g.metadata.category_box.as_ref().unwrap().size, [1.0, 2.0, 0.5]);
@@ -573,22 +578,12 @@ mod tests {
     fn version_1_metadata_that_is_not_an_object_is_kept_as_text() {
         let f = small_forest();
         for (raw, kept) in [("not json", true), ("[1, 2]", true), ("", false)] {
-            let mut p = Vec::new();
-            put_str(&mut p, "0.0.1");
-            put_str(&mut p, &f.params.to_json());
-            put_str(&mut p, raw);
-            encode_trees(&mut p, &f);
-            let g = decode(&seal(1, &p), "old").unwrap();
+            let g = decode(&version_1_file(&f, raw), "old").unwrap();
             assert_eq!(g.trees, f.trees);
             assert_eq!(g.metadata.extra.get("legacy_metadata").is_some(), kept, "{raw}");
         }
         // Bad inference defaults in an old file are a format error naming them.
-        let mut p = Vec::new();
-        put_str(&mut p, "0.0.1");
-        put_str(&mut p, &f.params.to_json());
-        put_str(&mut p, r#"{"predict_defaults": {"stride": 0}}"#);
-        encode_trees(&mut p, &f);
-        let e = decode(&seal(1, &p), "old").unwrap_err().to_string();
+        let e = decode(&version_1_file(&f, r#"{"predict_defaults": {"stride": 0}}"#), "old").unwrap_err().to_string();
         assert!(e.contains("predict_defaults") && e.contains("stride"), "{e}");
     }
 
