@@ -385,6 +385,30 @@ impl PyForest {
         ))
     }
 
+    /// This forest with per-leaf vote weights (one float32 array of `n_leaves[t]` weights in
+    /// [0, 1] per tree `t`), or without any (`None`): a new Forest, this one unchanged. Every
+    /// vote of leaf `l` of tree `t` then counts `weights[t][l]` times its weight in `predict`.
+    fn with_leaf_weights(&self, weights: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let f = self.fitted()?;
+        let per_tree = match weights {
+            None => None,
+            Some(w) => Some(
+                w.try_iter()
+                    .map_err(|_| input_err("weights: a sequence of float32 arrays, one per tree"))?
+                    .enumerate()
+                    .map(|(t, a)| Ok(slice(&f32_array(&a?, &format!("weights[{t}]"), &[None])?).to_vec()))
+                    .collect::<PyResult<Vec<Vec<f32>>>>()?,
+            ),
+        };
+        let forest = (*f).clone().with_leaf_weights(per_tree).map_err(to_py)?;
+        Ok(PyForest::new_with(State::of(forest), self.threads()))
+    }
+    /// The per-leaf vote weights (one float32 array per tree), or None (one-class).
+    #[getter]
+    fn leaf_weights<'py>(&self, py: Python<'py>) -> PyResult<Option<Vec<Bound<'py, PyArray1<f32>>>>> {
+        Ok(self.fitted()?.leaf_weights.as_ref().map(|w| w.per_tree().iter().map(|t| vector(py, t.clone())).collect()))
+    }
+
     /// Training configuration as JSON.
     #[getter]
     fn params_json(&self) -> String {
