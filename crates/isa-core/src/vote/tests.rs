@@ -446,43 +446,17 @@ fn errors_name_the_vote_or_parameter() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("votes[3]") && e.contains("weight"), "{e}");
-    for (p, name) in [
-        (
-            VoteParams {
-                position_bandwidth: 0.0,
-                ..Default::default()
-            },
-            "position_bandwidth",
-        ),
-        (
-            VoteParams {
-                rotation_bandwidth: 4.0,
-                ..Default::default()
-            },
-            "rotation_bandwidth",
-        ),
-        (
-            VoteParams {
-                nms_radius: f32::NAN,
-                ..Default::default()
-            },
-            "nms_radius",
-        ),
-        (
-            VoteParams {
-                max_hypotheses: 0,
-                ..Default::default()
-            },
-            "max_hypotheses",
-        ),
-        (
-            VoteParams {
-                max_seeds: 0,
-                ..Default::default()
-            },
-            "max_seeds",
-        ),
-    ] {
+    // Each parameter set out of range in turn.
+    let spoil: [(&str, fn(&mut VoteParams)); 5] = [
+        ("position_bandwidth", |p| p.position_bandwidth = 0.0),
+        ("rotation_bandwidth", |p| p.rotation_bandwidth = 4.0),
+        ("nms_radius", |p| p.nms_radius = f32::NAN),
+        ("max_hypotheses", |p| p.max_hypotheses = 0),
+        ("max_seeds", |p| p.max_seeds = 0),
+    ];
+    for (name, set) in spoil {
+        let mut p = VoteParams::default();
+        set(&mut p);
         let e = find_modes(&[good], &p).unwrap_err();
         assert!(matches!(e, IsaError::InvalidParameter(_)));
         assert!(e.to_string().contains(name), "{e}");
