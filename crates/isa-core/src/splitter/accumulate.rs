@@ -235,6 +235,7 @@ fn add_block(
     k0: usize,
     part: &mut [f32],
 ) {
+    let blk = Block { z, mp, js, bins, grp, k0 };
     macro_rules! dispatch {
         ($($w:literal)*) => {
             match lanes {
@@ -252,7 +253,6 @@ fn add_block(
             }
         };
     }
-    let blk = Block { z, mp, js, bins, grp, k0 };
     let _ = avx2;
     dispatch!(1 2 3 4 5 6 7 8 9 10)
 }
