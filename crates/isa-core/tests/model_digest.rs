@@ -129,7 +129,11 @@ fn hypotheses(f: &Forest) -> Vec<Hypothesis> {
 /// (rotation row-major, translation, score) of the first hypotheses.
 type Expected = ([f64; 9], [f64; 3], f64);
 
-fn check(name: &str, f: &Forest, (trees, digest): (u64, u64), expected: &[Expected]) {
+/// Trains the `quality` model on [`data`] and compares it with the recorded digests and
+/// hypotheses.
+fn check(quality: Quality, (trees, digest): (u64, u64), expected: &[Expected]) {
+    let name = quality.as_str();
+    let f = &train(&data(), quality);
     let bytes = f.to_bytes();
     let tree_digest = fnv1a(format!("{:?}", f.trees).as_bytes());
     println!("{name}: trees {tree_digest:#018x}");
@@ -168,10 +172,8 @@ fn check(name: &str, f: &Forest, (trees, digest): (u64, u64), expected: &[Expect
 
 #[test]
 fn q1_model_bytes_and_hypotheses_are_unchanged() {
-    let d = data();
     check(
-        "Q1",
-        &train(&d, Quality::Q1),
+        Quality::Q1,
         (0x8830_afbb_bdb1_0a94, 0x785e_f8f5_95d2_5395),
         &[
             (
@@ -229,10 +231,8 @@ fn q1_model_bytes_and_hypotheses_are_unchanged() {
 
 #[test]
 fn q1q2q3_model_bytes_and_hypotheses_are_unchanged() {
-    let d = data();
     check(
-        "Q1+Q2+Q3",
-        &train(&d, Quality::Q1Q2Q3),
+        Quality::Q1Q2Q3,
         (0x3944_46e2_0706_6699, 0xa39e_0fea_b101_68f1),
         &[
             (

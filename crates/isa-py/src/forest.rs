@@ -402,6 +402,7 @@ impl PyForest {
         hypothesis::to_list(slf.py(), hyps)
     }
 
+    // The arguments of `predict` (the public API); both are `predict::on_image`.
     /// Every vote of a whole depth image (for plots): dict of `position` (V, 3) float32 metres,
     /// `rotation` (V, 4) float32 (w, x, y, z), `weight` (V,) float32 (leaf share / n_trees),
     /// `pixel` (V, 2) int32 (u, v) of the casting part, `tree` (V,) int32, `n_parts` int.

@@ -14,6 +14,8 @@ use crate::errors::to_py;
 /// Writes a training-set file (`.isat`, see `isa_core::trainset_io`) for `isa train`: the same
 /// arguments as `Forest.fit` (images: list of (h, w) uint16 crops; parts (P, 3) int32; offsets
 /// (P, 3), rotations (P, 4), link_angles (P, L), node_offsets (P, 3N) float32) plus metadata JSON.
+// Its array arguments are `Forest.fit`'s on purpose (the public API; converted by the same
+// `arrays::Targets`).
 #[pyfunction]
 #[pyo3(signature = (path, images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}"))]
 #[allow(clippy::too_many_arguments)]
