@@ -167,7 +167,7 @@ impl<'py> Targets<'py> {
     }
 
     /// The number of parts.
-    pub fn len(&self) -> usize {
+    pub fn n_parts(&self) -> usize {
         self.offsets.shape()[0]
     }
 

@@ -39,7 +39,7 @@ pub fn criterion_gains<'py>(
     reduce_dims: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     let r = targets_arg(targets)?;
-    let n = r.len();
+    let n = r.n_parts();
     let mask = array::<bool>(left_mask, "left_mask", "bool_", &[Some(n)])?;
     let g = term_gains(&r.raw(), mask.as_slice()?, reg, reduce_dims).map_err(to_py)?;
     let d = PyDict::new(py);
@@ -98,7 +98,7 @@ pub fn split_search<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let q = Quality::parse(quality).map_err(to_py)?;
     let r = targets_arg(targets)?;
-    let n = r.len();
+    let n = r.n_parts();
     let fa = f32_array(features, "features", &[Some(n), None])?;
     let c = fa.shape()[1];
     if n_thresholds == 0 || reg.is_nan() || reg <= 0.0 {

@@ -438,7 +438,8 @@ fn errors_name_the_vote_or_parameter() {
         .to_string();
     assert!(e.contains("votes[3]") && e.contains("weight"), "{e}");
     // Each parameter set out of range in turn.
-    let spoil: [(&str, fn(&mut VoteParams)); 5] = [
+    type Setter = fn(&mut VoteParams);
+    let spoil: [(&str, Setter); 5] = [
         ("position_bandwidth", |p| p.position_bandwidth = 0.0),
         ("rotation_bandwidth", |p| p.rotation_bandwidth = 4.0),
         ("nms_radius", |p| p.nms_radius = f32::NAN),
