@@ -288,6 +288,7 @@ def find_modes(
 def default_predict_params() -> dict[str, Any]:
     """The default inference parameters (flat: image-level and mode-finding keys)."""
 
+# Forest.fit's array arguments, on purpose: the file holds what `isa train` fits on.
 def write_trainset(
     path: str | os.PathLike[str],
     images: list[npt.NDArray[np.uint16]],

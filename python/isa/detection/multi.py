@@ -32,7 +32,7 @@ import numpy as np
 from isa import _core, atomic
 from isa.camera import Intrinsics
 from isa.detection.gravity import GravityEstimate
-from isa.detection.planes import PlaneParams
+from isa.detection.planes import PlaneParams, checked_depth
 from isa.detection.refine import RefineParams
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import VerifyParams
@@ -227,10 +227,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     model path / :class:`isa.forest.model.Forest` / :class:`CategoryModel`, or a sequence of
     :class:`CategoryModel`; ``gravity`` the camera -> upright rotation when known.
     """
-    depth = _to_metres(depth)
-    if depth.shape != (intrinsics.height, intrinsics.width):
-        raise InvalidValueError(f"detect: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
-                         f"{intrinsics.width}x{intrinsics.height}")
+    depth = checked_depth(_to_metres(depth), intrinsics, "detect")
     ms = _models(models)
     g = None if gravity is None else np.asarray(gravity, dtype=float).reshape(3, 3)
     specs = [{"category": m.category, "forest": m.forest, "size": m.box.size, "ssc_offset": m.box.ssc_offset,

@@ -655,26 +655,9 @@ mod tests {
             cy: 59.5,
         };
         let (w, h) = (160usize, 120usize);
-        let chair = synth::chair();
-        let mut store = DepthStore::new();
-        let mut poses = Vec::new();
-        for i in 0..12 {
-            let az = i as f64 * std::f64::consts::TAU / 12.0;
-            let pose = synth::look_at(az, 0.35, 2.5);
-            store
-                .push(w, h, &synth::render(&chair, pose.0, pose.1, &k, w, h))
-                .unwrap();
-            poses.push(pose);
-        }
+        let (store, poses) = synth::chair_views(12, |_| 0.35, 2.5, &k, w, h);
         let parts = sample_parts(&store, 2, Some(400), 7).unwrap();
-        let (mut offsets, mut rotations) = (Vec::new(), Vec::new());
-        for (i, pose) in poses.iter().enumerate() {
-            let mine: Vec<[i32; 3]> = parts.iter().filter(|p| p[0] == i as i32).copied().collect();
-            let img = store.image(i);
-            let (o, r) = synth::targets(&mine, img.data, w, pose.0, pose.1, &k);
-            offsets.extend(o);
-            rotations.extend(r);
-        }
+        let (offsets, rotations) = synth::view_targets(&parts, &store, &poses, &k);
         let params = ForestParams {
             n_trees: 4,
             max_depth: 14,
