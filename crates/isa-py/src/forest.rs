@@ -22,7 +22,7 @@ use isa_core::shards::{Manifest, ShardSet};
 use isa_core::vote as core_vote;
 use isa_core::{Forest, ForestParams, ModelMetadata, PredictParams, TrainingSet, Valid};
 
-use crate::arrays::{depth_store, matrix, parts as parts_arg, rows, vector, Targets};
+use crate::arrays::{as_slice, depth_store, f32_array, matrix, parts as parts_arg, rows, vector, Targets};
 use crate::errors::{input_err, to_py};
 use crate::params::{forest_params, json_to_py, kwargs_json};
 use crate::{hypothesis, predict, scalars};
@@ -378,7 +378,10 @@ impl PyForest {
                 w.try_iter()
                     .map_err(|_| input_err("weights: a sequence of float32 arrays, one per tree"))?
                     .enumerate()
-                    .map(|(t, a)| Ok(slice(&f32_array(&a?, &format!("weights[{t}]"), &[None])?).to_vec()))
+                    .map(|(t, a)| {
+                        let name = format!("weights[{t}]");
+                        Ok(as_slice(&f32_array(&a?, &name, &[None])?, &name)?.to_vec())
+                    })
                     .collect::<PyResult<Vec<Vec<f32>>>>()?,
             ),
         };

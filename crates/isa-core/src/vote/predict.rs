@@ -444,26 +444,32 @@ mod tests {
         cy: 11.5,
     };
 
-    #[test]
-    fn prepared_trees_follow_replaced_trees() {
+    /// The toy forest trained with `seed` (one thread).
+    fn toy_forest(seed: u64) -> Forest {
         use crate::forest::tests::{q1_set, toy, toy_params};
         let (store, parts, off, rot) = toy(2);
-        let data = q1_set(&store, &parts, &off, &rot);
-        let mut a = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), Some(1)).unwrap();
-        let b = Forest::fit(&ForestParams {
-                seed: 7,
-                ..toy_params()
-            }.check().unwrap(), &data, Default::default(), Some(1),
-        )
-        .unwrap();
+        let params = ForestParams { seed, ..toy_params() };
+        Forest::fit(&params.check().unwrap(), &q1_set(&store, &parts, &off, &rot), Default::default(), Some(1)).unwrap()
+    }
+
+    /// A 64 x 48 depth ramp every pixel of which is valid, and stride-2 parameters.
+    fn ramp() -> (Vec<u16>, usize, usize, Valid<PredictParams>) {
         let (w, h) = (64usize, 48usize);
         let depth: Vec<u16> = (0..w * h).map(|i| 1000 + ((i * 37) % 900) as u16).collect();
-        let img = DepthImage::new(&depth, w, h).unwrap();
         let p = PredictParams {
             stride: 2,
             ..Default::default()
         };
-        let votes = |f: &Forest| image_votes(f, &img, &K, &p.clone().check().unwrap()).unwrap().votes;
+        (depth, w, h, p.check().unwrap())
+    }
+
+    #[test]
+    fn prepared_trees_follow_replaced_trees() {
+        let mut a = toy_forest(crate::forest::tests::toy_params().seed);
+        let b = toy_forest(7);
+        let (depth, w, h, p) = ramp();
+        let img = DepthImage::new(&depth, w, h).unwrap();
+        let votes = |f: &Forest| image_votes(f, &img, &K, &p).unwrap().votes;
         let va = votes(&a);
         assert_eq!(votes(&a), va); // from the cache
         let vb = votes(&b.clone()); // a clone prepares its own trees
@@ -477,19 +483,9 @@ mod tests {
     /// hypotheses keep only the votes the weights keep.
     #[test]
     fn leaf_weights_scale_the_votes_of_their_leaves() {
-        use crate::forest::tests::{q1_set, toy, toy_params};
-        let (store, parts, off, rot) = toy(2);
-        let data = q1_set(&store, &parts, &off, &rot);
-        let plain = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), Some(1)).unwrap();
-        let (w, h) = (64usize, 48usize);
-        let depth: Vec<u16> = (0..w * h).map(|i| 1000 + ((i * 37) % 900) as u16).collect();
+        let plain = toy_forest(crate::forest::tests::toy_params().seed);
+        let (depth, w, h, p) = ramp();
         let img = DepthImage::new(&depth, w, h).unwrap();
-        let p = PredictParams {
-            stride: 2,
-            ..Default::default()
-        }
-        .check()
-        .unwrap();
         // Weight of leaf l of tree t: a value in [0, 1] that differs between leaves and trees.
         let lw = |t: usize, l: usize| ((t * 7 + l * 3) % 5) as f32 / 4.0;
         let per_tree = |f: &dyn Fn(usize, usize) -> f32| -> Vec<Vec<f32>> {
