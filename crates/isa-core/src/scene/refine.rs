@@ -49,87 +49,134 @@ pub fn upright_points(
     out
 }
 
-/// Nearest-neighbour lookups within a fixed radius: the points bucketed on a dense grid of
-/// cells of that side over their bounds (compressed rows: a start per cell into one index list).
-struct RadiusGrid<'a> {
-    points: &'a [Vector3<f64>],
+/// Nearest-neighbour lookups within a fixed radius: the points bucketed in vertical columns
+/// of a dense 2D grid (side `radius / COLUMN_SPLIT`) over their bounds, each column's points
+/// sorted by height, so a query tests only the columns whose footprint meets its ball and, in
+/// each, only the points within the ball's height range (found by bisection).
+struct RadiusGrid {
+    radius: f64,
     cell: f64,
-    lo: Vector3<f64>,
-    dims: [i64; 3],
+    lo: [f64; 2],
+    dims: [i64; 2],
+    /// Start of each column in the sorted arrays (compressed rows).
     start: Vec<u32>,
-    order: Vec<u32>,
+    z: Vec<f64>,
+    points: Vec<Vector3<f64>>,
+    ids: Vec<u32>,
 }
 
-impl<'a> RadiusGrid<'a> {
-    fn new(points: &'a [Vector3<f64>], radius: f64) -> Self {
+/// Columns per radius: finer columns test fewer points (a ball instead of a 3x3 block) at the
+/// cost of more column look-ups.
+const COLUMN_SPLIT: i64 = 1;
+
+impl RadiusGrid {
+    fn new(points: &[Vector3<f64>], radius: f64) -> Self {
+        let cell = radius / COLUMN_SPLIT as f64;
         let lo = points
             .iter()
-            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(p));
-        let hi = points
-            .iter()
-            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(p));
-        let dims = [0, 1, 2].map(|k| ((hi[k] - lo[k]) / radius).floor() as i64 + 1);
-        let n_cells = (dims[0] * dims[1] * dims[2]) as usize;
+            .fold([f64::INFINITY; 2], |m, p| [m[0].min(p.x), m[1].min(p.y)]);
+        let hi = points.iter().fold([f64::NEG_INFINITY; 2], |m, p| {
+            [m[0].max(p.x), m[1].max(p.y)]
+        });
+        let dims = [0, 1].map(|k| ((hi[k] - lo[k]) / cell).floor() as i64 + 1);
+        let n_cols = if points.is_empty() {
+            0
+        } else {
+            (dims[0] * dims[1]) as usize
+        };
         let mut g = RadiusGrid {
-            points,
-            cell: radius,
+            radius,
+            cell,
             lo,
             dims,
-            start: vec![0; n_cells + 1],
-            order: vec![0; points.len()],
+            start: vec![0; n_cols + 1],
+            z: Vec::with_capacity(points.len()),
+            points: Vec::with_capacity(points.len()),
+            ids: Vec::new(),
         };
         let keys: Vec<usize> = points
             .iter()
-            .map(|p| g.flat(g.key(p)).expect("inside its own bounds"))
+            .map(|p| {
+                let k = g.key(p);
+                (k[0] * g.dims[1] + k[1]) as usize
+            })
             .collect();
         for &k in &keys {
             g.start[k + 1] += 1;
         }
-        for c in 0..n_cells {
+        for c in 0..n_cols {
             g.start[c + 1] += g.start[c];
         }
         let mut fill = g.start.clone();
+        let mut by_col = vec![(0.0f64, 0u32); points.len()];
         for (i, &k) in keys.iter().enumerate() {
-            g.order[fill[k] as usize] = i as u32;
+            by_col[fill[k] as usize] = (points[i].z, i as u32);
             fill[k] += 1;
         }
+        for c in 0..n_cols {
+            let col = &mut by_col[g.start[c] as usize..g.start[c + 1] as usize];
+            if col.len() > 1 {
+                col.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            }
+        }
+        for &(z, i) in &by_col {
+            g.z.push(z);
+            g.points.push(points[i as usize]);
+        }
+        g.ids = by_col.into_iter().map(|(_, i)| i).collect();
         g
     }
 
-    fn key(&self, p: &Vector3<f64>) -> [i64; 3] {
-        [0, 1, 2].map(|k| floor_i64((p[k] - self.lo[k]) / self.cell))
+    fn key(&self, p: &Vector3<f64>) -> [i64; 2] {
+        [0, 1].map(|k| floor_i64((p[k] - self.lo[k]) / self.cell))
     }
 
-    fn flat(&self, k: [i64; 3]) -> Option<usize> {
-        let inside = (0..3).all(|a| k[a] >= 0 && k[a] < self.dims[a]);
-        inside.then(|| ((k[0] * self.dims[1] + k[1]) * self.dims[2] + k[2]) as usize)
-    }
-
-    /// The nearest point strictly within the radius: `(index, distance)`; ties to the lower index.
+    /// The nearest point strictly within the radius: `(index, distance)`; ties to the lower
+    /// index. The query's own column first; a column or height range farther than the best
+    /// distance so far (or the radius) is skipped, with a margin for rounding, so the answer is
+    /// that of testing every point.
     fn nearest(&self, q: &Vector3<f64>) -> Option<(usize, f64)> {
         if self.points.is_empty() {
             return None;
         }
+        let r2 = self.radius * self.radius;
         let k = self.key(q);
+        let gap = |a: usize, c: i64| {
+            let base = self.lo[a] + c as f64 * self.cell;
+            (base - q[a]).max(q[a] - (base + self.cell)).max(0.0)
+        };
         let mut best: Option<(usize, f64)> = None;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(c) = self.flat([k[0] + dx, k[1] + dy, k[2] + dz]) else {
-                        continue;
-                    };
-                    for &i in &self.order[self.start[c] as usize..self.start[c + 1] as usize] {
-                        let i = i as usize;
-                        let d2 = (self.points[i] - q).norm_squared();
-                        if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
-                            best = Some((i, d2));
-                        }
-                    }
+        let reach = COLUMN_SPLIT;
+        let own = std::iter::once((0, 0));
+        let around = (-reach..=reach)
+            .flat_map(|dx| (-reach..=reach).map(move |dy| (dx, dy)))
+            .filter(|&d| d != (0, 0));
+        for (dx, dy) in own.chain(around) {
+            let (cx, cy) = (k[0] + dx, k[1] + dy);
+            if cx < 0 || cy < 0 || cx >= self.dims[0] || cy >= self.dims[1] {
+                continue;
+            }
+            let (gx, gy) = (gap(0, cx), gap(1, cy));
+            let box2 = gx * gx + gy * gy;
+            let bound = best.map_or(r2, |b| b.1.min(r2));
+            if box2 - bound > 1e-9 * box2 + 1e-12 {
+                continue;
+            }
+            let c = (cx * self.dims[1] + cy) as usize;
+            let (s, e) = (self.start[c] as usize, self.start[c + 1] as usize);
+            let zr = (bound - box2).max(0.0).sqrt() * (1.0 + 1e-9) + 1e-6;
+            let col = &self.z[s..e];
+            let a = s + col.partition_point(|&z| z < q.z - zr);
+            let b = s + col.partition_point(|&z| z <= q.z + zr);
+            for j in a..b {
+                let d2 = (self.points[j] - q).norm_squared();
+                let i = self.ids[j] as usize;
+                if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
+                    best = Some((i, d2));
                 }
             }
         }
-        best.filter(|b| b.1 < self.cell * self.cell)
-            .map(|(i, d2)| (i, d2.sqrt()))
+        best.filter(|b| b.1 < r2).map(|(i, d2)| (i, d2.sqrt()))
     }
 }
 
@@ -290,6 +337,55 @@ mod tests {
     use super::super::shapes::tests::box_library;
     use super::super::verify::tests::box_scene;
     use super::*;
+
+    /// The column grid answers as testing every point: nearest within the radius, ties to the
+    /// lower index (duplicated points), queries inside, on and outside the points' bounds.
+    #[test]
+    fn nearest_is_the_brute_force_answer() {
+        let mut state = 7u64;
+        let mut rnd = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // A surface-like cloud (a box's faces, coarse coordinates so distances tie) and copies.
+        let mut pts: Vec<Vector3<f64>> = (0..1500)
+            .map(|_| {
+                let mut p = Vector3::new(rnd() * 2.0, rnd() * 0.8, rnd());
+                p[(rnd() * 3.0) as usize] = if rnd() < 0.5 { 0.0 } else { 1.0 };
+                p.map(|x| (x * 64.0).round() / 64.0)
+            })
+            .collect();
+        pts.extend(pts[..200].to_vec());
+        for radius in [0.15, 0.07, 0.03, 1.0 / 64.0] {
+            let grid = RadiusGrid::new(&pts, radius);
+            for _ in 0..2000 {
+                let q = Vector3::new(rnd() * 2.6 - 0.3, rnd() * 1.4 - 0.3, rnd() * 1.6 - 0.3).map(
+                    |x| {
+                        if rnd() < 0.3 {
+                            (x * 64.0).round() / 64.0
+                        } else {
+                            x
+                        }
+                    },
+                );
+                let mut want: Option<(usize, f64)> = None;
+                for (i, p) in pts.iter().enumerate() {
+                    let d2 = (p - q).norm_squared();
+                    if d2 < radius * radius && want.is_none_or(|b| d2 < b.1) {
+                        want = Some((i, d2));
+                    }
+                }
+                assert_eq!(
+                    grid.nearest(&q),
+                    want.map(|(i, d2)| (i, d2.sqrt())),
+                    "{q:?} {radius}"
+                );
+            }
+        }
+        assert_eq!(RadiusGrid::new(&[], 0.1).nearest(&Vector3::zeros()), None);
+    }
 
     #[test]
     fn a_known_small_offset_is_recovered() {
