@@ -294,13 +294,13 @@ def bench_split(args):
         # Rust: one untimed warm-up call (thread pool start, first touch of the allocator's
         # pages), then the best of 3 calls (the NumPy row is the best of its 2-4 runs).
         def rust(**kw):
-            runs = [_testing.split_search(feats, off, rot, a, s, quality=q, n_thresholds=K, reduce_dims=rd, seed=1, **kw)
+            runs = [_testing.split_search(feats, (off, rot, a, s), quality=q, n_thresholds=K, reduce_dims=rd, seed=1, **kw)
                     for _ in range(4)][1:]
             return min(runs, key=lambda x: x["seconds"])
         r = rust()
         t_rust = r["seconds"]
         r1 = rust(n_threads=1)
-        tg, dims = _testing.criterion_targets(off, rot, a, s, reduce_dims=rd)
+        tg, dims = _testing.criterion_targets((off, rot, a, s), reduce_dims=rd)
         # The faster of the two NumPy strategies (one-hot GEMM is hopeless for full a, s), with
         # the faster BLAS thread count (a second OpenBLAS thread busy-waits: on a loaded 2-core
         # machine it made the tall-skinny products up to 10x slower).
@@ -418,10 +418,10 @@ def bench_reduction_effect(args):
         full = None
         res = {}
         for k in ks:
-            r = _testing.split_search(feats, a, b, c, d, quality="Q1+Q2+Q3", reduce_dims=k, min_samples_leaf=5, seed=t)
+            r = _testing.split_search(feats, (a, b, c, d), quality="Q1+Q2+Q3", reduce_dims=k, min_samples_leaf=5, seed=t)
             times[k] += r["seconds"]
             mask = feats[:, r["candidate"]] < r["threshold"]
-            g = _testing.criterion_gains(a, b, c, d, mask, reduce_dims=0)
+            g = _testing.criterion_gains((a, b, c, d), mask, reduce_dims=0)
             res[k] = (r["candidate"], r["threshold"], g["Q1"] + g["Q2"] + g["Q3"], g["Q1"])
         full = res[0]
         for k in ks:

@@ -79,29 +79,9 @@ const K640: Intrinsics = Intrinsics {
 
 /// A 10-tree forest (depth 20) trained on 24 views of the synthetic chair at 640x480.
 fn chair_forest() -> Forest {
-    let chair = synth::chair();
-    let mut store = DepthStore::new();
-    let mut poses = Vec::new();
-    for i in 0..24 {
-        let az = i as f64 * std::f64::consts::TAU / 24.0;
-        let pose = synth::look_at(az, 0.3 + 0.1 * (i % 3) as f64, 2.5);
-        store
-            .push(
-                640,
-                480,
-                &synth::render(&chair, pose.0, pose.1, &K640, 640, 480),
-            )
-            .unwrap();
-        poses.push(pose);
-    }
+    let (store, poses) = synth::chair_views(24, |i| 0.3 + 0.1 * (i % 3) as f64, 2.5, &K640, 640, 480);
     let parts = sample_parts(&store, 2, Some(2000), 1).unwrap();
-    let (mut offsets, mut rotations) = (Vec::new(), Vec::new());
-    for (i, pose) in poses.iter().enumerate() {
-        let mine: Vec<[i32; 3]> = parts.iter().filter(|p| p[0] == i as i32).copied().collect();
-        let (o, r) = synth::targets(&mine, store.image(i).data, 640, pose.0, pose.1, &K640);
-        offsets.extend(o);
-        rotations.extend(r);
-    }
+    let (offsets, rotations) = synth::view_targets(&parts, &store, &poses, &K640);
     let params = ForestParams {
         n_trees: 10,
         max_depth: 20,
@@ -278,6 +258,17 @@ fn cpu_report() {
     });
 }
 
+/// The whole-frame calls benchmarked per scene and stride.
+type FrameCall = fn(&Forest, &DepthImage<'_>, &Valid<PredictParams>);
+const FRAME_CALLS: [(&str, FrameCall); 2] = [
+    ("predict", |f, img, pp| {
+        std::hint::black_box(vote::predict(f, img, &K640, pp).unwrap());
+    }),
+    ("image_votes", |f, img, pp| {
+        std::hint::black_box(vote::image_votes(f, img, &K640, pp).unwrap());
+    }),
+];
+
 fn bench(c: &mut Criterion) {
     cpu_report();
     let votes = synthetic_votes(100_000, 3);
@@ -288,22 +279,16 @@ fn bench(c: &mut Criterion) {
 
     for (scene, stride) in CASES {
         let pp = at_stride(stride);
-        c.bench_function(
-            &format!("predict/640x480_{scene}_10trees_stride{stride}"),
-            |b| {
-                let f = frames();
-                let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
-                b.iter(|| vote::predict(&f.forest, &img, &K640, &pp).unwrap())
-            },
-        );
-        c.bench_function(
-            &format!("image_votes/640x480_{scene}_10trees_stride{stride}"),
-            |b| {
-                let f = frames();
-                let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
-                b.iter(|| vote::image_votes(&f.forest, &img, &K640, &pp).unwrap())
-            },
-        );
+        for (call, run) in FRAME_CALLS {
+            c.bench_function(
+                &format!("{call}/640x480_{scene}_10trees_stride{stride}"),
+                |b| {
+                    let f = frames();
+                    let img = DepthImage::new(f.depth(scene), 640, 480).unwrap();
+                    b.iter(|| run(&f.forest, &img, &pp))
+                },
+            );
+        }
     }
 }
 

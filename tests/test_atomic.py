@@ -29,6 +29,14 @@ def _temps(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if atomic.TEMP_MARK in p.name or ".tmp" in p.name)
 
 
+def _run_together(threads: list[threading.Thread]) -> None:
+    """Starts every thread, then waits for them all (so they write at the same time)."""
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+
+
 def test_two_threads_writing_two_training_sets_never_swap_data(tmp_path):
     # Issue 20: both took the temporary name ``set.tmp<pid>``; 169 of 300 writes held the other's data.
     sets = {"set.isat": _set(3), "set.bak": _set(4)}
@@ -42,10 +50,7 @@ def test_two_threads_writing_two_training_sets_never_swap_data(tmp_path):
                 bad.append(name)
 
     threads = [threading.Thread(target=writer, args=(n,)) for n in sets]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    _run_together(threads)
     assert bad == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["set.bak", "set.isat"]
 
@@ -63,10 +68,7 @@ def test_concurrent_saves_of_one_model_all_succeed_and_the_last_wins_whole(tmp_p
                 errors.append(exc)
 
     threads = [threading.Thread(target=saver, args=(two_forests[k % 2],)) for k in range(4)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    _run_together(threads)
     assert errors == []
     assert path.read_bytes() in {f.to_bytes() for f in two_forests}
     assert _temps(tmp_path) == []
@@ -84,10 +86,7 @@ def test_python_writers_two_paths_and_one_path(tmp_path):
 
     threads = [threading.Thread(target=writer, args=(n,)) for n in bodies] + \
               [threading.Thread(target=writer, args=("a.json",))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    _run_together(threads)
     assert bad == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bak", "a.json"]
 

@@ -117,7 +117,7 @@ def test_gains_match_numpy_on_random_data(seed, terms):
     no = no if "Q3" in terms else None
     # A split correlated with the targets, so the gains are far from zero.
     mask = (off[:, 0] + rng.normal(0, 0.2, n) > 0)
-    got = _testing.criterion_gains(off, q, la, no, mask)
+    got = _testing.criterion_gains((off, q, la, no), mask)
     assert_close(got, reference_gains(off, q, la, no, mask))
 
 
@@ -127,7 +127,7 @@ def test_gains_match_numpy_for_every_reg_and_random_masks(reg):
     off, q, la, no = random_targets(rng, 300, n_links=4, n_nodes=3)
     for _ in range(5):
         mask = rng.random(300) < rng.uniform(0.1, 0.9)
-        got = _testing.criterion_gains(off, q, la, no, mask, reg=reg)
+        got = _testing.criterion_gains((off, q, la, no), mask, reg=reg)
         assert_close(got, reference_gains(off, q, la, no, mask, reg=reg))
 
 
@@ -141,7 +141,7 @@ def test_gains_with_dimension_reduction_match_numpy():
     no = (base @ np.linalg.qr(rng.normal(size=(12, 12)))[0]).astype(np.float32)
     mask = off[:, 1] > 0.1
     for k in (2, 4):
-        got = _testing.criterion_gains(off, q, la, no, mask, reduce_dims=k)
+        got = _testing.criterion_gains((off, q, la, no), mask, reduce_dims=k)
         assert_close(got, reference_gains(off, q, la, no, mask, reduce_dims=k))
 
 
@@ -154,7 +154,7 @@ def test_degenerate_nodes_are_finite_and_match_numpy():
     la[:] = la[0]
     mask = np.zeros(n, bool)
     mask[7] = True
-    got = _testing.criterion_gains(off, q, la, no, mask)
+    got = _testing.criterion_gains((off, q, la, no), mask)
     assert_close(got, reference_gains(off, q, la, no, mask))
     # A left child whose targets are all identical.
     off2 = off.copy()
@@ -162,10 +162,10 @@ def test_degenerate_nodes_are_finite_and_match_numpy():
     no2 = no.copy()
     no2[:30] = no2[0]
     mask = np.arange(n) < 30
-    got = _testing.criterion_gains(off2, q, la, no2, mask)
+    got = _testing.criterion_gains((off2, q, la, no2), mask)
     assert_close(got, reference_gains(off2, q, la, no2, mask))
     # Two parts only.
-    got = _testing.criterion_gains(off[:2], q[:2], la[:2], no[:2], np.array([True, False]))
+    got = _testing.criterion_gains((off[:2], q[:2], la[:2], no[:2]), np.array([True, False]))
     assert_close(got, reference_gains(off[:2], q[:2], la[:2], no[:2], np.array([True, False])))
 
 
@@ -175,19 +175,19 @@ def test_rotation_representation_is_continuous():
     off, q, _, _ = random_targets(rng, 200)
     mask = rng.random(200) < 0.5
     flipped = np.where(rng.random((200, 1)) < 0.5, -q, q).astype(np.float32)
-    a = _testing.criterion_gains(off, q, None, None, mask)["Q1"]
-    b = _testing.criterion_gains(off, flipped, None, None, mask)["Q1"]
+    a = _testing.criterion_gains((off, q, None, None), mask)["Q1"]
+    b = _testing.criterion_gains((off, flipped, None, None), mask)["Q1"]
     assert abs(a - b) <= 1e-9 * max(1.0, abs(a))
 
 
 def test_criterion_targets_layout():
     rng = np.random.default_rng(4)
     off, q, la, no = random_targets(rng, 50, n_links=5, n_nodes=2)
-    t, dims = _testing.criterion_targets(off, q, la, no, reduce_dims=0)
+    t, dims = _testing.criterion_targets((off, q, la, no), reduce_dims=0)
     assert dims == [3, 6, 10, 6] and t.shape == (50, 25) and t.dtype == np.float32
     ref = reference_blocks(off, q, la, no)
     np.testing.assert_allclose(t, np.concatenate([ref[k] for k in ("off", "rot", "links", "nodes")], 1), atol=1e-6)
-    t, dims = _testing.criterion_targets(off, q, la, no, reduce_dims=3)
+    t, dims = _testing.criterion_targets((off, q, la, no), reduce_dims=3)
     assert dims == [3, 6, 3, 3]
 
 
@@ -195,11 +195,11 @@ def test_bad_criterion_inputs():
     rng = np.random.default_rng(4)
     off, q, la, no = random_targets(rng, 20)
     with pytest.raises(_core.InvalidInputError, match="left_mask"):
-        _testing.criterion_gains(off, q, None, None, np.zeros(20, bool))
+        _testing.criterion_gains((off, q, None, None), np.zeros(20, bool))
     with pytest.raises(_core.InvalidInputError, match="left_mask"):
-        _testing.criterion_gains(off, q, None, None, np.zeros(20, np.int8))
+        _testing.criterion_gains((off, q, None, None), np.zeros(20, np.int8))
     with pytest.raises(_core.InvalidParameterError, match="reg"):
-        _testing.criterion_gains(off, q, None, None, np.arange(20) < 5, reg=0.0)
+        _testing.criterion_gains((off, q, None, None), np.arange(20) < 5, reg=0.0)
 
 
 # ---------------------------------------------------------------- features ----------------------

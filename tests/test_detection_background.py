@@ -103,6 +103,56 @@ def test_background_parts_lower_floor_and_wall_votes_in_an_unseen_room(trained, 
     assert (w_on * pw).sum() / (v["weight"] * pw).sum() > 1.5 * w_on.sum() / v["weight"].sum()
 
 
+@pytest.mark.slow
+def test_leaf_weights_in_the_model_file_vote_as_the_numpy_reference(trained, tmp_path):
+    """The core weights each vote by its leaf's weight (model format 3) as the NumPy reference
+    (:func:`isa.detection.background.weighted_predict`) does from every part's leaves; a side
+    ``.foreground.npz`` gives the same model through ``load_model``."""
+    from isa.detection import load_model
+    from isa.detection.background import fit_leaf_foreground, weighted_predict
+    from isa.forest.model import Forest
+
+    forest, prepared = trained
+    rooms = [_room(prepared.objects[0].mesh, 0.2, 0.6, 0.5, (0.0, -1.8, 1.3), (0.2, 0.6, 0.4))]
+    fg = fit_leaf_foreground(forest, *_labelled_parts(rooms), category="chair")
+    forest.save(tmp_path / "plain.isa")
+    forest.with_leaf_weights(fg.leaf_weights(forest)).save(tmp_path / "weighted.isa")
+    loaded = Forest.load(tmp_path / "weighted.isa")
+    assert forest.leaf_weights is None and Forest.load(tmp_path / "plain.isa").leaf_weights is None
+    for got, want, n in zip(loaded.leaf_weights, fg.probs, forest.n_leaves, strict=True):
+        np.testing.assert_array_equal(got, want[:n])
+    fg.save(tmp_path / "plain.foreground.npz")
+    beside = load_model(tmp_path / "plain.isa")
+    assert beside.forest.to_bytes() == loaded.to_bytes()
+
+    depth, _, _ = _room(prepared.objects[1].mesh, -0.3, 1.0, 2.0, (0.5, -1.5, 1.6), (-0.3, 1.0, 0.4))
+    kw = {"stride": 4, "max_hypotheses": 3}
+    ref = weighted_predict(forest, fg, depth, KINECT_V1, **kw)
+    ours = loaded.predict(depth, KINECT_V1, min_leaf_weight=0.0, **kw)
+    plain = forest.predict(depth, KINECT_V1, min_leaf_weight=0.0, **kw)
+    assert ref and ours and plain
+    np.testing.assert_allclose(ours[0]["t"], ref[0]["t"], atol=0.01)
+    assert ours[0]["score"] == pytest.approx(ref[0]["score"], rel=0.1)
+    # The weights (at most 1, many near 0 off the chair) take weight away.
+    assert ours[0]["score"] < 0.9 * plain[0]["score"]
+
+
+def test_bad_leaf_weights_are_refused_by_name(trained):
+    from isa.exceptions import InvalidInputError
+
+    forest, _ = trained
+    ok = [np.full(n, 0.5, np.float32) for n in forest.n_leaves]
+    assert len(forest.with_leaf_weights(ok).leaf_weights) == forest.n_trees
+    with pytest.raises(InvalidInputError, match="tree 1 leaf 3"):
+        bad = [w.copy() for w in ok]
+        bad[1][3] = -0.1
+        forest.with_leaf_weights(bad)
+    with pytest.raises(InvalidInputError, match="tree 0 has"):
+        forest.with_leaf_weights([w[:-1] for w in ok])
+    with pytest.raises(InvalidInputError, match=r"weights\[0\].* is not finite"):
+        forest.with_leaf_weights([np.full(n, np.nan, np.float32) for n in forest.n_leaves])
+
+
 def test_command_names_a_missing_model_and_writes_nothing(tmp_path, capsys):
     from isa.detection.background import main
 

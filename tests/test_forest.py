@@ -282,7 +282,12 @@ def test_inference_defaults_are_a_typed_field_of_the_model(toy_forest):
     assert g.predict_defaults == {**_core.PREDICT_DEFAULTS, "stride": 3, "nms_radius": 0.5}
     assert "predict_defaults" not in g.metadata
     assert Forest.from_bytes(g.to_bytes()).predict_defaults == g.predict_defaults
-    assert g.to_bytes()[8:12] == _core.MODEL_FORMAT_VERSION.to_bytes(4, "little")
+    # Format 2 holds the typed defaults; format 3 (leaf weights) is written only for weighted forests.
+    assert g.to_bytes()[8:12] == (2).to_bytes(4, "little")
+    assert _core.MODEL_FORMAT_VERSION == 3
+    weighted = g.with_leaf_weights([np.ones(n, np.float32) for n in g.n_leaves])
+    assert weighted.to_bytes()[8:12] == (3).to_bytes(4, "little")
+    assert weighted.predict_defaults == g.predict_defaults
     with pytest.raises(InvalidParameterError, match="predict_defaults.*strid"):
         Forest(**TOY_PARAMS).fit(images, parts, off, rot, predict_defaults={"strid": 3})
     with pytest.raises(InvalidParameterError, match="metadata: predict_defaults"):

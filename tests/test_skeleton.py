@@ -140,39 +140,23 @@ def _gt_scores(category: str, seeds, keep=None):
 # held-out seeds 50-57; mean (a) / instances meeting (b) / worst key point.
 
 
-def test_procedural_chairs_meet_both_claims():
-    # Measured: 1.7%, 12/12, 5.1%; held-out 1.6%, 8/8, 3.6%.
-    means, keys = _gt_scores("chair", range(6))
-    assert means.mean() < 0.05, means
-    assert keys.max() < 0.10, keys
-
-
-def test_procedural_tables_meet_both_claims():
-    # Measured: 3.6%, 12/12, 3.5% (pedestal tables, whose template "legs" run from the top's corners
-    # to the spoke tips, meet (a) once their column and spokes count); held-out 3.1%, 8/8, 3.9%.
-    means, keys = _gt_scores("table", range(6))
-    assert means.mean() < 0.05, means
-    assert keys.max() < 0.10, keys
-
-
-def test_procedural_beds_meet_both_claims():
-    # Measured: 4.55% (template links alone 7.0%), 12/12, worst 8.5%; held-out 5.0% (at the claim,
-    # no margin), 8/8, 7.0% (seeds 0-5: 4.6%, worst 8.5%). (b) since hull-vertex tips made the corners of
-    # solid platform bases skeleton ends (before: 9/12, worst 12.4%); (a) since the coverage paths
-    # follow TEASAR's centred metric through the mattress-on-base slab (before: 5.1%, held-out 5.6%).
-    # What is left of (a) is mostly coverage paths to the middle of the slab's sides and ends, which
-    # the true skeleton (spine and corner bisectors) does not reach.
-    means, keys = _gt_scores("bed", range(6))
-    assert means.mean() < 0.05, means
-    assert keys.max() < 0.10, keys
-
-
-def test_procedural_toilets_meet_both_claims():
-    # Measured: 4.1%, 12/12, worst 7.5%; held-out 4.4%, 8/8, 8.9% (seeds 0-5: 3.9%, 7.5%). (b) since
-    # mirror-image end branches at the rear body's two bottom-back corners fold into one at the
-    # middle of that edge, where its medial skeleton ends (before: 9/12, worst 13.0%; held-out 5/8,
-    # 12.4%), and end branches run on to the surface. The tightest key points are now rim points.
-    means, keys = _gt_scores("toilet", range(6))
+# Measured, per category:
+# - chair: 1.7%, 12/12, 5.1%; held-out 1.6%, 8/8, 3.6%.
+# - table: 3.6%, 12/12, 3.5% (pedestal tables, whose template "legs" run from the top's corners to
+#   the spoke tips, meet (a) once their column and spokes count); held-out 3.1%, 8/8, 3.9%.
+# - bed: 4.55% (template links alone 7.0%), 12/12, worst 8.5%; held-out 5.0% (at the claim, no
+#   margin), 8/8, 7.0% (seeds 0-5: 4.6%, worst 8.5%). (b) since hull-vertex tips made the corners of
+#   solid platform bases skeleton ends (before: 9/12, worst 12.4%); (a) since the coverage paths
+#   follow TEASAR's centred metric through the mattress-on-base slab (before: 5.1%, held-out 5.6%).
+#   What is left of (a) is mostly coverage paths to the middle of the slab's sides and ends, which
+#   the true skeleton (spine and corner bisectors) does not reach.
+# - toilet: 4.1%, 12/12, worst 7.5%; held-out 4.4%, 8/8, 8.9% (seeds 0-5: 3.9%, 7.5%). (b) since
+#   mirror-image end branches at the rear body's two bottom-back corners fold into one at the
+#   middle of that edge, where its medial skeleton ends (before: 9/12, worst 13.0%; held-out 5/8,
+#   12.4%), and end branches run on to the surface. The tightest key points are now rim points.
+@pytest.mark.parametrize("category", ["chair", "table", "bed", "toilet"])
+def test_procedural_objects_meet_both_claims(category):
+    means, keys = _gt_scores(category, range(6))
     assert means.mean() < 0.05, means
     assert keys.max() < 0.10, keys
 

@@ -2,18 +2,14 @@
 //! crates/isa-cli/src/inputs.rs) on arbitrary files; what reads gives valid intrinsics.
 #![no_main]
 
-#[allow(dead_code)]
-#[path = "../../crates/isa-cli/src/error.rs"]
-mod error;
-#[allow(dead_code)]
-#[path = "../../crates/isa-cli/src/inputs.rs"]
-mod inputs;
+mod cli_files;
 
+// `inputs` names its errors `crate::error`.
+use cli_files::{error, inputs};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let path = std::env::temp_dir().join(format!("isa-fuzz-camera-{}.json", std::process::id()));
-    std::fs::write(&path, data).unwrap();
+    let path = cli_files::temp_file("camera.json", data);
     if let Ok(cam) = inputs::CameraFile::read(&path) {
         for id in [None, Some(0), Some(1), Some(u64::MAX)] {
             if let Ok((k, _, scale)) = cam.for_image(id) {

@@ -5,7 +5,7 @@ the stated dtype, shape and C-contiguity, finite values; anything else raises
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from types import ModuleType
 from typing import Any, final
 
@@ -53,7 +53,8 @@ __all__ = [
 __version__: str
 #: Test hooks (criterion terms, split search): not public API.
 _testing: ModuleType
-#: Version of the model-file format this build writes (and the newest it reads).
+#: The newest model-file format this build reads and writes (a forest without leaf weights is
+#: written as format 2).
 MODEL_FORMAT_VERSION: int
 #: Depth (mm) a feature probe reads outside the image or on missing depth.
 BACKGROUND_MM: float
@@ -194,6 +195,12 @@ class Forest:
         self, tree: int, leaf: int
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """(weights (k,), offsets (k, 3), rotations (k, 4)) of one leaf."""
+    def with_leaf_weights(self, weights: Sequence[npt.NDArray[np.float32]] | None) -> Forest:
+        """This forest with per-leaf vote weights (one float32 array of ``n_leaves[t]`` weights
+        in [0, 1] per tree), or without any (None): a new Forest, this one unchanged."""
+    @property
+    def leaf_weights(self) -> list[npt.NDArray[np.float32]] | None:
+        """The per-leaf vote weights (one array per tree), or None (one-class)."""
     @property
     def params_json(self) -> str:
         """The training configuration as JSON."""
@@ -281,6 +288,7 @@ def find_modes(
 def default_predict_params() -> dict[str, Any]:
     """The default inference parameters (flat: image-level and mode-finding keys)."""
 
+# Forest.fit's array arguments, on purpose: the file holds what `isa train` fits on.
 def write_trainset(
     path: str | os.PathLike[str],
     images: list[npt.NDArray[np.uint16]],

@@ -186,10 +186,10 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     per_model = []
     for m in ms:
         kw = {"stride": params.stride, "max_hypotheses": params.max_hypotheses, **params.predict}
-        if m.foreground is not None:
+        if m.forest.leaf_weights is not None:
             from isa.detection.background import weighted_predict
 
-            per_model.append(weighted_predict(m.forest, m.foreground, clean, intrinsics, **kw))
+            per_model.append(weighted_predict(m.forest, None, clean, intrinsics, **kw))
         else:
             per_model.append(m.forest.predict(clean, intrinsics, **kw))
     secs["votes"] = time.perf_counter() - t0

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from isa.camera import Intrinsics
-from isa.detection.planes import Plane, PlaneParams, PlaneRemoval
+from isa.detection.planes import Plane, PlaneParams, PlaneRemoval, checked_depth
 from isa.exceptions import InvalidValueError
 
 
@@ -166,17 +166,9 @@ def find_planes(points: np.ndarray, depth: np.ndarray, params: PlaneParams = Pla
 
 def remove_planes(depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray, params: PlaneParams = PlaneParams(),
                   floor: bool = True, walls: bool = True) -> PlaneRemoval:
-    """Set the pixels of the floor (and everything under it) and of walls to 0 (missing).
-
-    ``depth`` (H, W) float metres, 0 = missing; ``R_gravity`` camera to upright (``X_up = R_gravity
-    @ X_cam``). See :class:`PlaneParams` for what counts as a floor or a wall.
-    """
-    depth = np.asarray(depth, dtype=np.float32)
-    if depth.ndim != 2:
-        raise InvalidValueError(f"remove_planes: depth must be (H, W), got {depth.shape}")
-    if depth.shape != (intrinsics.height, intrinsics.width):
-        raise InvalidValueError(f"remove_planes: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
-                         f"{intrinsics.width}x{intrinsics.height}")
+    """The numpy version of :func:`isa.detection.planes.remove_planes` (its arguments and input
+    checks)."""
+    depth = checked_depth(depth, intrinsics, "remove_planes")
     Rg = np.asarray(R_gravity, dtype=float).reshape(3, 3)
     valid = depth > 0
     cam = intrinsics.backproject(depth)[valid]

@@ -113,13 +113,22 @@ fn tree_rows(forest: &Forest) -> Vec<Value> {
         .collect()
 }
 
-pub fn inspect_json(forest: &Forest, path: &Path, bytes: u64) -> String {
+/// A model file as `isa inspect` describes it.
+pub struct ModelFile<'a> {
+    pub path: &'a Path,
+    pub bytes: u64,
+    /// The format version in its header.
+    pub version: u32,
+}
+
+pub fn inspect_json(forest: &Forest, file: &ModelFile<'_>) -> String {
     let (nodes, leaves) = forest.size();
     let votes: usize = forest.trees.iter().map(|t| t.votes.len()).sum();
     let doc = json!({
-        "path": path.display().to_string(),
-        "file_bytes": bytes,
-        "format_version": isa_core::model_io::FORMAT_VERSION,
+        "path": file.path.display().to_string(),
+        "file_bytes": file.bytes,
+        "format_version": file.version,
+        "leaf_weights": forest.leaf_weights.is_some(),
         "crate_version": forest.crate_version,
         "params": forest.params,
         "predict_defaults": forest.predict_defaults,
@@ -143,18 +152,20 @@ fn block(label: &str, value: &impl serde::Serialize) -> String {
     )
 }
 
-pub fn inspect_text(forest: &Forest, path: &Path, bytes: u64) -> String {
+pub fn inspect_text(forest: &Forest, file: &ModelFile<'_>) -> String {
     let (nodes, leaves) = forest.size();
     let votes: usize = forest.trees.iter().map(|t| t.votes.len()).sum();
     let mut s = format!(
-        "model file    {} ({bytes} bytes, format version {})\n",
-        path.display(),
-        isa_core::model_io::FORMAT_VERSION
+        "model file    {} ({} bytes, format version {})\n",
+        file.path.display(),
+        file.bytes,
+        file.version
     );
     s += &format!("trained by    isa {}\n", forest.crate_version);
     s += &format!(
-        "forest        {} trees, {nodes} nodes, {leaves} leaves, {votes} leaf votes\n",
-        forest.n_trees()
+        "forest        {} trees, {nodes} nodes, {leaves} leaves, {votes} leaf votes{}\n",
+        forest.n_trees(),
+        if forest.leaf_weights.is_some() { ", leaf weights" } else { "" }
     );
     let depths: Vec<usize> = forest.trees.iter().map(|t| t.depth()).collect();
     if let (Some(lo), Some(hi)) = (depths.iter().min(), depths.iter().max()) {

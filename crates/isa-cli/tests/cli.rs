@@ -143,6 +143,8 @@ fn train_inspect_predict_round_trip() {
     let o = isa(&["inspect", m, "--json"]);
     let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(doc["n_trees"], 4);
+    // A one-class forest is written as format 2 (format 3 adds leaf weights).
+    assert_eq!((doc["format_version"].as_u64(), doc["leaf_weights"].as_bool()), (Some(2), Some(false)));
     assert_eq!(doc["metadata"]["category"], "chair");
     assert_eq!(doc["params"]["max_depth"], 14);
     assert_eq!(doc["trees"].as_array().unwrap().len(), 4);

@@ -19,6 +19,7 @@
 //!     n_nodes u32, then per node: is_leaf u8, child u32, threshold f32, u f32×2, v f32×2
 //!     n_leaves u32, then leaf_offsets u32×(n_leaves+1)
 //!     n_votes u32, then per vote: weight f32, offset f32×3, rotation f32×4
+//!   leaf weights     (version 3 only) per tree: n_leaves u32, then weight f32×n_leaves
 //! ```
 //! Decoding checks the magic (foreign file), the version (newer file), the length (truncated),
 //! the checksum (corrupted), then every count against the bytes left before allocating and the
@@ -34,20 +35,24 @@
 //! pipeline kept them as `predict_defaults` (flat keys); such files still load, their
 //! `predict_defaults` read into the typed field ([`split_metadata`], unknown keys skipped) and
 //! metadata that is not a JSON object kept as the string `extra["legacy_metadata"]`. Version 2
-//! added the field; the trees and votes are encoded as in version 1.
+//! added the field; the trees and votes are encoded as in version 1. Version 3 adds the per-leaf
+//! vote weights ([`LeafWeights`]) after the trees; a forest without them is written as version 2,
+//! so one-class models keep their bytes and older readers keep reading them.
 
 use std::fs;
 use std::path::Path;
 
 use crate::error::{IsaError, Result};
 use crate::features::Feature;
-use crate::forest::Forest;
+use crate::forest::{Forest, LeafWeights};
 use crate::metadata::{split_metadata, ModelMetadata};
 use crate::params::{ForestParams, PredictParams};
 use crate::tree::{Node, Tree, Vote};
 
 pub const MAGIC: &[u8; 8] = b"ISAFRST\0";
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
+/// The version a forest without leaf weights is written in.
+const ONE_CLASS_VERSION: u32 = 2;
 const HEADER: usize = 32;
 const NODE_BYTES: usize = 1 + 4 + 4 + 16;
 const VOTE_BYTES: usize = 32;
@@ -84,7 +89,16 @@ pub fn encode(forest: &Forest) -> Vec<u8> {
         &serde_json::to_string(&*forest.predict_defaults).expect("parameters serialise"),
     );
     encode_trees(&mut p, forest);
-    seal(FORMAT_VERSION, &p)
+    match &forest.leaf_weights {
+        None => seal(ONE_CLASS_VERSION, &p),
+        Some(w) => {
+            for tw in w.per_tree() {
+                p.extend_from_slice(&(tw.len() as u32).to_le_bytes());
+                put_f32s(&mut p, tw);
+            }
+            seal(FORMAT_VERSION, &p)
+        }
+    }
 }
 
 /// The trees and their votes (the same bytes in every format version).
@@ -334,6 +348,17 @@ pub fn decode_payload(payload: &[u8], version: u32) -> R<Forest> {
     for ti in 0..n_trees {
         trees.push(read_tree(&mut r, ti)?);
     }
+    let leaf_weights = if version >= 3 {
+        let mut per_tree = Vec::with_capacity(n_trees);
+        for ti in 0..n_trees {
+            let what = |e: String| format!("leaf weights of tree {ti}: {e}");
+            let n = r.count(4, "weights").map_err(what)?;
+            per_tree.push((0..n).map(|_| r.f32()).collect::<R<Vec<f32>>>().map_err(what)?);
+        }
+        Some(LeafWeights::checked(per_tree, &trees)?)
+    } else {
+        None
+    };
     if r.left() != 0 {
         return Err(format!("{} unexpected bytes after the last tree", r.left()));
     }
@@ -350,6 +375,7 @@ pub fn decode_payload(payload: &[u8], version: u32) -> R<Forest> {
         metadata,
         predict_defaults,
         crate_version,
+        leaf_weights,
         flat: Default::default(),
     })
 }
@@ -404,6 +430,11 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
         return Err(err("corrupted: checksum mismatch".into()));
     }
     decode_payload(payload, version).map_err(|r| err(format!("corrupted: {r}")))
+}
+
+/// The format version of a model file's bytes (its header), if they start like one.
+pub fn file_version(bytes: &[u8]) -> Option<u32> {
+    (bytes.len() >= 12 && &bytes[..8] == MAGIC).then(|| u32::from_le_bytes(bytes[8..12].try_into().unwrap()))
 }
 
 /// Writes a forest atomically ([`crate::atomic`]).
@@ -476,6 +507,47 @@ mod tests {
             ..Default::default()
         };
         Forest::fit(&p.check().unwrap(), &data, meta, None).unwrap()
+    }
+
+    /// [`small_forest`] with leaf weights that differ between leaves (format version 3).
+    fn weighted_forest() -> Forest {
+        let f = small_forest();
+        let w = f.trees.iter().map(|t| (0..t.n_leaves()).map(|l| (l % 4) as f32 / 3.0).collect()).collect();
+        f.with_leaf_weights(Some(w)).unwrap()
+    }
+
+    #[test]
+    fn leaf_weights_roundtrip_in_version_3_and_one_class_forests_stay_version_2() {
+        let plain = small_forest();
+        let f = weighted_forest();
+        let (bp, bw) = (encode(&plain), encode(&f));
+        assert_eq!(u32::from_le_bytes(bp[8..12].try_into().unwrap()), 2);
+        assert_eq!(u32::from_le_bytes(bw[8..12].try_into().unwrap()), 3);
+        // Version 3 is version 2's payload followed by the weights.
+        assert!(bw[HEADER..].starts_with(&bp[HEADER..]));
+        let g = decode(&bw, "w.isa").unwrap();
+        assert_eq!(g, f);
+        assert_eq!(g.leaf_weights.unwrap().per_tree(), f.leaf_weights.as_ref().unwrap().per_tree());
+        assert_eq!(decode(&bp, "p.isa").unwrap().leaf_weights, None);
+        // A version-3 header on a payload without weights, and weights out of range or for the
+        // wrong number of leaves, are refused by name.
+        let e = decode(&seal(3, &bp[HEADER..]), "cut.isa").unwrap_err().to_string();
+        assert!(e.contains("cut.isa") && e.contains("leaf weights of tree 0"), "{e}");
+        let mut payload = bw[HEADER..].to_vec();
+        let k = payload.len() - 4;
+        payload[k..].copy_from_slice(&1.5f32.to_le_bytes());
+        let e = decode(&seal(3, &payload), "big.isa").unwrap_err().to_string();
+        assert!(e.contains("big.isa") && e.contains("not in [0, 1]"), "{e}");
+        payload[k..].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert!(decode(&seal(3, &payload), "nan.isa").unwrap_err().to_string().contains("non-finite"));
+        let n0 = f.trees[0].n_leaves();
+        let mut short = bp[HEADER..].to_vec();
+        for t in &f.trees {
+            short.extend_from_slice(&((t.n_leaves() - 1) as u32).to_le_bytes());
+            short.extend(std::iter::repeat_n(0u8, 4 * (t.n_leaves() - 1)));
+        }
+        let e = decode(&seal(3, &short), "few.isa").unwrap_err().to_string();
+        assert!(e.contains(&format!("tree 0 has {n0} leaves")), "{e}");
     }
 
     fn is_format_err(r: Result<Forest>) -> bool {
@@ -554,7 +626,7 @@ mod tests {
         encode_trees(&mut trees, &f);
         assert!(V1.ends_with(&trees));
         let v2 = encode(&f);
-        assert_eq!(u32::from_le_bytes(v2[8..12].try_into().unwrap()), FORMAT_VERSION);
+        assert_eq!(u32::from_le_bytes(v2[8..12].try_into().unwrap()), ONE_CLASS_VERSION);
         assert!(v2.ends_with(&trees));
         assert_eq!(decode(&v2, "v2").unwrap(), f);
     }
@@ -647,7 +719,7 @@ mod tests {
         #[test]
         fn mutated_payloads_never_panic(muts in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..6),
                                         cut in any::<prop::sample::Index>()) {
-            let good = encode(&small_forest());
+            let good = encode(&weighted_forest());
             let mut payload = good[HEADER..].to_vec();
             for (i, v) in muts {
                 let k = i.index(payload.len());

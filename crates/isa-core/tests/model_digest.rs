@@ -46,36 +46,21 @@ struct Data {
 
 /// Ten views of the chair, 300 parts each; privileged targets derived from the exact pose.
 fn data() -> Data {
-    let chair = synth::chair();
-    let mut store = DepthStore::new();
-    let mut poses = Vec::new();
-    for i in 0..10 {
-        let az = i as f64 * std::f64::consts::TAU / 10.0;
-        let pose = synth::look_at(az, 0.3 + 0.05 * (i % 3) as f64, 2.5);
-        store
-            .push(W, H, &synth::render(&chair, pose.0, pose.1, &K, W, H))
-            .unwrap();
-        poses.push(pose);
-    }
+    let (store, poses) = synth::chair_views(10, |i| 0.3 + 0.05 * (i % 3) as f64, 2.5, &K, W, H);
     let parts = sample_parts(&store, 2, Some(300), 3).unwrap();
-    let (mut offsets, mut rotations, mut links, mut nodes) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    for (i, (r, t)) in poses.iter().enumerate() {
-        let mine: Vec<[i32; 3]> = parts.iter().filter(|p| p[0] == i as i32).copied().collect();
-        let (o, q) = synth::targets(&mine, store.image(i).data, W, *r, *t, &K);
-        for off in o.chunks(3) {
-            let (x, y, z) = (f64::from(off[0]), f64::from(off[1]), f64::from(off[2]));
-            links.push(y.atan2(x) as f32);
-            links.push(z.atan2(x.hypot(y)) as f32);
-            for n in NODES {
-                for a in 0..3 {
-                    let rn = r[a][0] * n[0] + r[a][1] * n[1] + r[a][2] * n[2];
-                    nodes.push((f64::from(off[a]) + rn) as f32);
-                }
+    let (offsets, rotations) = synth::view_targets(&parts, &store, &poses, &K);
+    let (mut links, mut nodes) = (Vec::new(), Vec::new());
+    for (p, off) in parts.iter().zip(offsets.chunks(3)) {
+        let r = poses[p[0] as usize].0;
+        let (x, y, z) = (f64::from(off[0]), f64::from(off[1]), f64::from(off[2]));
+        links.push(y.atan2(x) as f32);
+        links.push(z.atan2(x.hypot(y)) as f32);
+        for n in NODES {
+            for a in 0..3 {
+                let rn = r[a][0] * n[0] + r[a][1] * n[1] + r[a][2] * n[2];
+                nodes.push((f64::from(off[a]) + rn) as f32);
             }
         }
-        offsets.extend(o);
-        rotations.extend(q);
     }
     Data {
         store,
@@ -144,7 +129,11 @@ fn hypotheses(f: &Forest) -> Vec<Hypothesis> {
 /// (rotation row-major, translation, score) of the first hypotheses.
 type Expected = ([f64; 9], [f64; 3], f64);
 
-fn check(name: &str, f: &Forest, (trees, digest): (u64, u64), expected: &[Expected]) {
+/// Trains the `quality` model on [`data`] and compares it with the recorded digests and
+/// hypotheses.
+fn check(quality: Quality, (trees, digest): (u64, u64), expected: &[Expected]) {
+    let name = quality.as_str();
+    let f = &train(&data(), quality);
     let bytes = f.to_bytes();
     let tree_digest = fnv1a(format!("{:?}", f.trees).as_bytes());
     println!("{name}: trees {tree_digest:#018x}");
@@ -183,10 +172,8 @@ fn check(name: &str, f: &Forest, (trees, digest): (u64, u64), expected: &[Expect
 
 #[test]
 fn q1_model_bytes_and_hypotheses_are_unchanged() {
-    let d = data();
     check(
-        "Q1",
-        &train(&d, Quality::Q1),
+        Quality::Q1,
         (0x8830_afbb_bdb1_0a94, 0x785e_f8f5_95d2_5395),
         &[
             (
@@ -244,10 +231,8 @@ fn q1_model_bytes_and_hypotheses_are_unchanged() {
 
 #[test]
 fn q1q2q3_model_bytes_and_hypotheses_are_unchanged() {
-    let d = data();
     check(
-        "Q1+Q2+Q3",
-        &train(&d, Quality::Q1Q2Q3),
+        Quality::Q1Q2Q3,
         (0x3944_46e2_0706_6699, 0xa39e_0fea_b101_68f1),
         &[
             (

@@ -8,6 +8,7 @@ use numpy::{Element, PyArray1, PyArray2, PyArrayDyn, PyReadonlyArrayDyn, PyUntyp
 use pyo3::prelude::*;
 use pyo3::types::PyList;
 
+use isa_core::criterion::RawTargets;
 use isa_core::{DepthStore, Part};
 
 use crate::errors::input_err;
@@ -132,6 +133,61 @@ pub fn f32_array<'py>(
     Ok(a)
 }
 
+/// A training set's per-part targets as `Forest.fit` takes them: `offsets` (P, 3), `rotations`
+/// (P, 4), `link_angles` (P, L) and `node_offsets` (P, 3N) or None; float32, finite. Borrowed.
+pub struct Targets<'py> {
+    pub offsets: PyReadonlyArrayDyn<'py, f32>,
+    pub rotations: PyReadonlyArrayDyn<'py, f32>,
+    pub link_angles: Option<PyReadonlyArrayDyn<'py, f32>>,
+    pub node_offsets: Option<PyReadonlyArrayDyn<'py, f32>>,
+}
+
+impl<'py> Targets<'py> {
+    /// Checks the arrays; `n` parts (None: as many as `offsets` has rows).
+    pub fn new(
+        n: Option<usize>,
+        offsets: &Bound<'py, PyAny>,
+        rotations: &Bound<'py, PyAny>,
+        link_angles: Option<&Bound<'py, PyAny>>,
+        node_offsets: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Self> {
+        let offsets = f32_array(offsets, "offsets", &[n, Some(3)])?;
+        let n = Some(offsets.shape()[0]);
+        let per_part = |o: Option<&Bound<'py, PyAny>>, name: &str| {
+            given(o)
+                .map(|o| f32_array(o, name, &[n, None]))
+                .transpose()
+        };
+        Ok(Targets {
+            rotations: f32_array(rotations, "rotations", &[n, Some(4)])?,
+            link_angles: per_part(link_angles, "link_angles")?,
+            node_offsets: per_part(node_offsets, "node_offsets")?,
+            offsets,
+        })
+    }
+
+    /// The number of parts.
+    pub fn n_parts(&self) -> usize {
+        self.offsets.shape()[0]
+    }
+
+    /// The core's view of the arrays.
+    pub fn raw(&self) -> RawTargets<'_> {
+        fn flat<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> &'a [f32] {
+            a.as_slice().expect("checked contiguous")
+        }
+        fn cols<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> (&'a [f32], usize) {
+            (flat(a), a.shape()[1])
+        }
+        RawTargets {
+            offsets: flat(&self.offsets),
+            rotations: flat(&self.rotations),
+            link_angles: self.link_angles.as_ref().map(cols),
+            node_offsets: self.node_offsets.as_ref().map(cols),
+        }
+    }
+}
+
 /// The contiguous data of a checked array.
 pub fn as_slice<'a, T: Element>(a: &'a PyReadonlyArrayDyn<'_, T>, name: &str) -> PyResult<&'a [T]> {
     a.as_slice().map_err(|e| input_err(format!("{name}: {e}")))
@@ -168,3 +224,12 @@ pub fn rows<'py, T: Element + Copy, const N: usize>(
 pub fn vector<'py, T: Element>(py: Python<'py>, data: Vec<T>) -> Bound<'py, PyArray1<T>> {
     PyArray1::from_vec(py, data)
 }
+
+/// `dict[name] = value.name` for each field `name` of a core result (the result dicts use the
+/// core's field names as keys).
+macro_rules! set_fields {
+    ($dict:expr, $value:expr; $($field:ident),+ $(,)?) => {
+        $( $dict.set_item(stringify!($field), &$value.$field)?; )+
+    };
+}
+pub(crate) use set_fields;

@@ -10,9 +10,9 @@
 //! | `Io` | `IsaIOError` | `OSError`; by error kind `IsaFileNotFoundError` (`FileNotFoundError`), `IsaPermissionError` (`PermissionError`), `IsaIsADirectoryError` (`IsADirectoryError`), with `errno` and `filename` set |
 //!
 //! The classes have two bases, which `create_exception!` cannot express, so they are defined
-//! by the Python source below when the module loads.
+//! in Python, from the table below, when the module loads.
 
-use std::ffi::CStr;
+use std::ffi::CString;
 
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
@@ -20,56 +20,62 @@ use pyo3::types::PyType;
 
 use isa_core::IsaError as CoreError;
 
-const SOURCE: &CStr = cr#"
-class IsaError(Exception):
-    """Base class of every error raised by isa."""
-    __module__ = "isa._core"
-
-class InvalidInputError(IsaError, ValueError):
-    """An argument has the wrong dtype, shape, layout or value (the message names it)."""
-    __module__ = "isa._core"
-
-class InvalidParameterError(IsaError, ValueError):
-    """A hyper-parameter failed validation (the message names it)."""
-    __module__ = "isa._core"
-
-class InvalidTypeError(InvalidInputError, TypeError):
-    """An argument has the wrong type (the message names it)."""
-    __module__ = "isa._core"
-
-class ModelFormatError(IsaError, ValueError):
-    """A model file is truncated, corrupted, foreign or from a newer format version."""
-    __module__ = "isa._core"
-
-class IsaIOError(IsaError, OSError):
-    """An operating-system I/O failure on a named file (``filename``, ``errno`` set)."""
-    __module__ = "isa._core"
-
-class IsaFileNotFoundError(IsaIOError, FileNotFoundError):
-    """A file that isa needs does not exist."""
-    __module__ = "isa._core"
-
-class IsaPermissionError(IsaIOError, PermissionError):
-    """A file cannot be read or written for lack of permission."""
-    __module__ = "isa._core"
-
-class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
-    """A path names a directory where isa needs a file."""
-    __module__ = "isa._core"
-"#;
-
-/// Class names, in the order of [`Kind`].
-const NAMES: [&str; 9] = [
-    "IsaError",
-    "InvalidInputError",
-    "InvalidTypeError",
-    "InvalidParameterError",
-    "ModelFormatError",
-    "IsaIOError",
-    "IsaFileNotFoundError",
-    "IsaPermissionError",
-    "IsaIsADirectoryError",
+/// Name, bases and docstring of each class, in the order of [`Kind`] (a base before its
+/// subclasses); [`source`] turns them into the Python that defines them.
+const CLASSES: [(&str, &str, &str); 9] = [
+    ("IsaError", "Exception", "Base class of every error raised by isa."),
+    (
+        "InvalidInputError",
+        "IsaError, ValueError",
+        "An argument has the wrong dtype, shape, layout or value (the message names it).",
+    ),
+    (
+        "InvalidTypeError",
+        "InvalidInputError, TypeError",
+        "An argument has the wrong type (the message names it).",
+    ),
+    (
+        "InvalidParameterError",
+        "IsaError, ValueError",
+        "A hyper-parameter failed validation (the message names it).",
+    ),
+    (
+        "ModelFormatError",
+        "IsaError, ValueError",
+        "A model file is truncated, corrupted, foreign or from a newer format version.",
+    ),
+    (
+        "IsaIOError",
+        "IsaError, OSError",
+        "An operating-system I/O failure on a named file (``filename``, ``errno`` set).",
+    ),
+    (
+        "IsaFileNotFoundError",
+        "IsaIOError, FileNotFoundError",
+        "A file that isa needs does not exist.",
+    ),
+    (
+        "IsaPermissionError",
+        "IsaIOError, PermissionError",
+        "A file cannot be read or written for lack of permission.",
+    ),
+    (
+        "IsaIsADirectoryError",
+        "IsaIOError, IsADirectoryError",
+        "A path names a directory where isa needs a file.",
+    ),
 ];
+
+/// The Python source of the classes.
+fn source() -> CString {
+    let text: String = CLASSES
+        .iter()
+        .map(|(name, bases, doc)| {
+            format!("class {name}({bases}):\n    \"\"\"{doc}\"\"\"\n    __module__ = \"isa._core\"\n\n")
+        })
+        .collect();
+    CString::new(text).expect("no NUL in the class table")
+}
 
 #[derive(Clone, Copy)]
 enum Kind {
@@ -88,10 +94,10 @@ static TYPES: PyOnceLock<Vec<Py<PyType>>> = PyOnceLock::new();
 fn types(py: Python<'_>) -> &Vec<Py<PyType>> {
     TYPES
         .get_or_try_init(py, || -> PyResult<Vec<Py<PyType>>> {
-            let m = PyModule::from_code(py, SOURCE, c"isa/_core/errors.py", c"isa._core._errors")?;
-            NAMES
+            let m = PyModule::from_code(py, &source(), c"isa/_core/errors.py", c"isa._core._errors")?;
+            CLASSES
                 .iter()
-                .map(|n| Ok(m.getattr(*n)?.cast_into::<PyType>()?.unbind()))
+                .map(|(n, _, _)| Ok(m.getattr(*n)?.cast_into::<PyType>()?.unbind()))
                 .collect()
         })
         .expect("the exception classes are valid Python")
@@ -148,7 +154,7 @@ pub fn param_err(msg: impl Into<String>) -> PyErr {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
-    for (name, ty) in NAMES.iter().zip(types(py)) {
+    for ((name, _, _), ty) in CLASSES.iter().zip(types(py)) {
         m.add(*name, ty.bind(py))?;
     }
     Ok(())

@@ -12,25 +12,20 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 
-use numpy::prelude::*;
-use numpy::{PyArray1, PyArray2, PyReadonlyArrayDyn};
+use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
-use isa_core::criterion::RawTargets;
 use isa_core::metadata::split_metadata;
 use isa_core::model_io::decode_tree;
 use isa_core::shards::{Manifest, ShardSet};
+use isa_core::vote as core_vote;
 use isa_core::{Forest, ForestParams, ModelMetadata, PredictParams, TrainingSet, Valid};
 
-use crate::arrays::{depth_store, f32_array, given, matrix, parts as parts_arg, rows, vector};
+use crate::arrays::{depth_store, matrix, parts as parts_arg, rows, vector, Targets};
 use crate::errors::{input_err, to_py};
 use crate::params::{forest_params, json_to_py, kwargs_json};
-use crate::scalars;
-
-fn slice<'a>(a: &'a PyReadonlyArrayDyn<'_, f32>) -> &'a [f32] {
-    a.as_slice().expect("checked contiguous")
-}
+use crate::{hypothesis, predict, scalars};
 
 /// A forest of randomised trees voting for the SSC offset and rotation of depth-image parts
 /// (the ISA forest, paper Section 3.3).
@@ -180,21 +175,8 @@ impl PyForest {
         let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
-        let n = parts.len();
-        let off = f32_array(offsets, "offsets", &[Some(n), Some(3)])?;
-        let rot = f32_array(rotations, "rotations", &[Some(n), Some(4)])?;
-        let la = given(link_angles)
-            .map(|o| f32_array(o, "link_angles", &[Some(n), None]))
-            .transpose()?;
-        let no = given(node_offsets)
-            .map(|o| f32_array(o, "node_offsets", &[Some(n), None]))
-            .transpose()?;
-        let raw = RawTargets {
-            offsets: slice(&off),
-            rotations: slice(&rot),
-            link_angles: la.as_ref().map(|a| (slice(a), a.shape()[1])),
-            node_offsets: no.as_ref().map(|a| (slice(a), a.shape()[1])),
-        };
+        let targets = Targets::new(Some(parts.len()), offsets, rotations, link_angles, node_offsets)?;
+        let raw = targets.raw();
         let params = self.state().params;
         let threads = self.threads();
         let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
@@ -385,6 +367,30 @@ impl PyForest {
         ))
     }
 
+    /// This forest with per-leaf vote weights (one float32 array of `n_leaves[t]` weights in
+    /// [0, 1] per tree `t`), or without any (`None`): a new Forest, this one unchanged. Every
+    /// vote of leaf `l` of tree `t` then counts `weights[t][l]` times its weight in `predict`.
+    fn with_leaf_weights(&self, weights: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let f = self.fitted()?;
+        let per_tree = match weights {
+            None => None,
+            Some(w) => Some(
+                w.try_iter()
+                    .map_err(|_| input_err("weights: a sequence of float32 arrays, one per tree"))?
+                    .enumerate()
+                    .map(|(t, a)| Ok(slice(&f32_array(&a?, &format!("weights[{t}]"), &[None])?).to_vec()))
+                    .collect::<PyResult<Vec<Vec<f32>>>>()?,
+            ),
+        };
+        let forest = (*f).clone().with_leaf_weights(per_tree).map_err(to_py)?;
+        Ok(PyForest::new_with(State::of(forest), self.threads()))
+    }
+    /// The per-leaf vote weights (one float32 array per tree), or None (one-class).
+    #[getter]
+    fn leaf_weights<'py>(&self, py: Python<'py>) -> PyResult<Option<Vec<Bound<'py, PyArray1<f32>>>>> {
+        Ok(self.fitted()?.leaf_weights.as_ref().map(|w| w.per_tree().iter().map(|t| vector(py, t.clone())).collect()))
+    }
+
     /// Training configuration as JSON.
     #[getter]
     fn params_json(&self) -> String {
@@ -416,9 +422,11 @@ impl PyForest {
         n_threads: Option<&Bound<'py, PyAny>>,
         params: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Bound<'py, PyList>> {
-        crate::predict::predict_with(slf, depth, K, n_threads, params)
+        let hyps = predict::on_image(slf, depth, K, n_threads, params, core_vote::predict)?;
+        hypothesis::to_list(slf.py(), hyps)
     }
 
+    // The arguments of `predict` (the public API); both are `predict::on_image`.
     /// Every vote of a whole depth image (for plots): dict of `position` (V, 3) float32 metres,
     /// `rotation` (V, 4) float32 (w, x, y, z), `weight` (V,) float32 (leaf share / n_trees),
     /// `pixel` (V, 2) int32 (u, v) of the casting part, `tree` (V,) int32, `n_parts` int.
@@ -431,7 +439,8 @@ impl PyForest {
         n_threads: Option<&Bound<'py, PyAny>>,
         params: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        crate::predict::image_votes_with(slf, depth, K, n_threads, params)
+        let votes = predict::on_image(slf, depth, K, n_threads, params, core_vote::image_votes)?;
+        predict::votes_dict(slf.py(), votes)
     }
     #[getter]
     fn is_fitted(&self) -> bool {

@@ -119,8 +119,9 @@ fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<&Bound<'_, PyAny>>
 
 /// Converts and checks one whole-image call (threads, the model's inference defaults overlaid by
 /// the keyword arguments, intrinsics, depth in mm) and runs `run` on it without the GIL, on the
-/// forest's current trees (another thread may refit it meanwhile).
-fn on_image<'py, T: Send>(
+/// forest's current trees (another thread may refit it meanwhile). `Forest.predict` and
+/// `Forest.image_votes` are this with `run` = the core's `predict` / `image_votes`.
+pub(crate) fn on_image<'py, T: Send>(
     forest: &Bound<'py, PyForest>,
     depth: &Bound<'py, PyAny>,
     k: &Bound<'py, PyAny>,
@@ -148,29 +149,8 @@ fn on_image<'py, T: Send>(
         .map_err(to_py)
 }
 
-/// Ranked hypotheses of `forest` on a whole depth image, with the model's inference defaults
-/// overlaid by `params` (shared by `Forest.predict` and `predict`).
-pub fn predict_with<'py>(
-    forest: &Bound<'py, PyForest>,
-    depth: &Bound<'py, PyAny>,
-    k: &Bound<'py, PyAny>,
-    n_threads: Option<&Bound<'py, PyAny>>,
-    params: Option<&Bound<'py, PyDict>>,
-) -> PyResult<Bound<'py, PyList>> {
-    let hyps = on_image(forest, depth, k, n_threads, params, core_vote::predict)?;
-    hypothesis::to_list(forest.py(), hyps)
-}
-
-/// Every vote of a whole depth image (shared by `Forest.image_votes` and `image_votes`).
-pub fn image_votes_with<'py>(
-    forest: &Bound<'py, PyForest>,
-    depth: &Bound<'py, PyAny>,
-    k: &Bound<'py, PyAny>,
-    n_threads: Option<&Bound<'py, PyAny>>,
-    params: Option<&Bound<'py, PyDict>>,
-) -> PyResult<Bound<'py, PyDict>> {
-    let py = forest.py();
-    let iv = on_image(forest, depth, k, n_threads, params, core_vote::image_votes)?;
+/// The dict of `Forest.image_votes`.
+pub(crate) fn votes_dict(py: Python<'_>, iv: core_vote::ImageVotes) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("position", rows(py, iv.votes.iter().map(|v| v.position)))?;
     d.set_item("rotation", rows(py, iv.votes.iter().map(|v| v.rotation)))?;

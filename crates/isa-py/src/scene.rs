@@ -15,7 +15,7 @@ use serde_json::Value;
 use isa_core::params::{overlay_json, DetectParams, PlaneParams, RefineParams, VerifyParams};
 use isa_core::scene::{self, planes::Planes, Camera, Frame, ShapeLibrary, SizeRange};
 
-use crate::arrays::{array, as_slice, describe, given, rows, vector};
+use crate::arrays::{array, as_slice, describe, given, rows, set_fields, vector};
 use crate::errors::{input_err, to_py};
 use crate::hypothesis::PyHypothesis;
 use crate::params::json_to_py;
@@ -290,12 +290,7 @@ pub fn verify_pose<'py>(
     };
     let v = scene::verify::verify_pose(&ev, &r, &t, &pts, [1.0; 3], spacing, &p, n_points);
     let out = PyDict::new(py);
-    out.set_item("score", v.score)?;
-    out.set_item("agree", v.agree)?;
-    out.set_item("violate", v.violate)?;
-    out.set_item("occluded", v.occluded)?;
-    out.set_item("missing", v.missing)?;
-    out.set_item("outside", v.outside)?;
+    set_fields!(out, v; score, agree, violate, occluded, missing, outside);
     Ok(out)
 }
 
@@ -341,11 +336,7 @@ pub fn refine_pose<'py>(
     let d = PyDict::new(py);
     d.set_item("R", rows(py, scene::rows(&out.r).into_iter()))?;
     d.set_item("t", vector(py, vec![out.t.x, out.t.y, out.t.z]))?;
-    d.set_item("rms", out.rms)?;
-    d.set_item("pairs", out.pairs)?;
-    d.set_item("yaw_change", out.yaw_change)?;
-    d.set_item("shift", out.shift)?;
-    d.set_item("converged", out.converged)?;
+    set_fields!(d, out; rms, pairs, yaw_change, shift, converged);
     Ok(d)
 }
 
@@ -526,14 +517,7 @@ pub fn detect<'py>(
         e.set_item("t", vector(py, x.t.to_vec()))?;
         e.set_item("size", vector(py, x.size.to_vec()))?;
         e.set_item("box_centre", vector(py, x.box_centre.to_vec()))?;
-        e.set_item("score", x.score)?;
-        e.set_item("support", x.support)?;
-        e.set_item("forest_score", x.forest_score)?;
-        e.set_item("rank", x.rank)?;
-        e.set_item("tilt_deg", x.tilt_deg)?;
-        e.set_item("shape", x.shape)?;
-        e.set_item("refined", x.refined)?;
-        e.set_item("turn", x.turn)?;
+        set_fields!(e, x; score, support, forest_score, rank, tilt_deg, shape, refined, turn);
         dets.append(e)?;
     }
     res.set_item("detections", dets)?;

@@ -6,91 +6,48 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use isa_core::criterion::{build_targets, term_gains, Criterion, RawTargets};
+use isa_core::criterion::{build_targets, term_gains, Criterion};
 use isa_core::splitter::{best_split_columns, SplitConfig};
 use isa_core::Quality;
 
-use crate::arrays::{array, f32_array, given, matrix};
-use crate::errors::{param_err, to_py};
+use crate::arrays::{array, describe, f32_array, matrix, Targets};
+use crate::errors::{input_err, param_err, to_py};
 
-fn f32_2d<'py>(
-    obj: &Bound<'py, PyAny>,
-    name: &str,
-    rows: Option<usize>,
-    cols: Option<usize>,
-) -> PyResult<numpy::PyReadonlyArrayDyn<'py, f32>> {
-    f32_array(obj, name, &[rows, cols])
-}
-
-struct Raw<'py> {
-    off: numpy::PyReadonlyArrayDyn<'py, f32>,
-    rot: numpy::PyReadonlyArrayDyn<'py, f32>,
-    la: Option<numpy::PyReadonlyArrayDyn<'py, f32>>,
-    no: Option<numpy::PyReadonlyArrayDyn<'py, f32>>,
-}
-
-impl<'py> Raw<'py> {
-    fn new(
-        offsets: &Bound<'py, PyAny>,
-        rotations: &Bound<'py, PyAny>,
-        link_angles: Option<&Bound<'py, PyAny>>,
-        node_offsets: Option<&Bound<'py, PyAny>>,
-    ) -> PyResult<Self> {
-        let off = f32_2d(offsets, "offsets", None, Some(3))?;
-        let n = off.shape()[0];
-        Ok(Raw {
-            rot: f32_2d(rotations, "rotations", Some(n), Some(4))?,
-            la: given(link_angles)
-                .map(|o| f32_2d(o, "link_angles", Some(n), None))
-                .transpose()?,
-            no: given(node_offsets)
-                .map(|o| f32_2d(o, "node_offsets", Some(n), None))
-                .transpose()?,
-            off,
-        })
-    }
-    fn raw(&self) -> RawTargets<'_> {
-        RawTargets {
-            offsets: self.off.as_slice().expect("contiguous"),
-            rotations: self.rot.as_slice().expect("contiguous"),
-            link_angles: self
-                .la
-                .as_ref()
-                .map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
-            node_offsets: self
-                .no
-                .as_ref()
-                .map(|a| (a.as_slice().expect("contiguous"), a.shape()[1])),
-        }
-    }
+/// The hooks' `targets`: the tuple `(offsets, rotations, link_angles, node_offsets)` of the
+/// arrays `Forest.fit` takes (the last two None when absent).
+fn targets_arg<'py>(targets: &Bound<'py, PyAny>) -> PyResult<Targets<'py>> {
+    type Four<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>);
+    let (off, rot, la, no): Four<'py> = targets.extract().map_err(|_| {
+        input_err(format!(
+            "targets: expected (offsets, rotations, link_angles, node_offsets), got {}",
+            describe(targets)
+        ))
+    })?;
+    Targets::new(None, &off, &rot, Some(&la), Some(&no))
 }
 
 /// Test hook: gains of the criterion terms for splitting these parts by `left_mask`, computed
 /// by the forest's own code (embedding, standardisation over these parts, optional reduction,
 /// ridge `reg`). Returns {"Q1": g1} plus "Q2" / "Q3" when link angles / node offsets are given.
 #[pyfunction]
-#[pyo3(signature = (offsets, rotations, link_angles, node_offsets, left_mask, reg=1e-4, reduce_dims=0))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (targets, left_mask, reg=1e-4, reduce_dims=0))]
 pub fn criterion_gains<'py>(
     py: Python<'py>,
-    offsets: &Bound<'py, PyAny>,
-    rotations: &Bound<'py, PyAny>,
-    link_angles: Option<&Bound<'py, PyAny>>,
-    node_offsets: Option<&Bound<'py, PyAny>>,
+    targets: &Bound<'py, PyAny>,
     left_mask: &Bound<'py, PyAny>,
     reg: f64,
     reduce_dims: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let r = Raw::new(offsets, rotations, link_angles, node_offsets)?;
-    let n = r.off.shape()[0];
+    let r = targets_arg(targets)?;
+    let n = r.n_parts();
     let mask = array::<bool>(left_mask, "left_mask", "bool_", &[Some(n)])?;
     let g = term_gains(&r.raw(), mask.as_slice()?, reg, reduce_dims).map_err(to_py)?;
     let d = PyDict::new(py);
     d.set_item("Q1", g[0])?;
-    if r.la.is_some() {
+    if r.link_angles.is_some() {
         d.set_item("Q2", g[1])?;
     }
-    if r.no.is_some() {
+    if r.node_offsets.is_some() {
         d.set_item("Q3", g[2])?;
     }
     Ok(d)
@@ -99,17 +56,14 @@ pub fn criterion_gains<'py>(
 /// The criterion's target vectors (embedded, standardised, optionally reduced): (P, D) float32
 /// and the block sizes [offset 3, rotation 6, links, nodes].
 #[pyfunction]
-#[pyo3(signature = (offsets, rotations, link_angles=None, node_offsets=None, reduce_dims=0))]
+#[pyo3(signature = (targets, reduce_dims=0))]
 pub fn criterion_targets<'py>(
     py: Python<'py>,
-    offsets: &Bound<'py, PyAny>,
-    rotations: &Bound<'py, PyAny>,
-    link_angles: Option<&Bound<'py, PyAny>>,
-    node_offsets: Option<&Bound<'py, PyAny>>,
+    targets: &Bound<'py, PyAny>,
     reduce_dims: usize,
 ) -> PyResult<(Bound<'py, PyArray2<f32>>, Vec<usize>)> {
-    let r = Raw::new(offsets, rotations, link_angles, node_offsets)?;
-    let q = match (r.la.is_some(), r.no.is_some()) {
+    let r = targets_arg(targets)?;
+    let q = match (r.link_angles.is_some(), r.node_offsets.is_some()) {
         (false, false) => Quality::Q1,
         (true, false) => Quality::Q1Q2,
         (false, true) => Quality::Q1Q3,
@@ -128,15 +82,12 @@ pub fn criterion_targets<'py>(
 /// candidate, threshold, total gain, term gains and the search time in seconds (excluding the
 /// target preprocessing).
 #[pyfunction]
-#[pyo3(signature = (features, offsets, rotations, link_angles=None, node_offsets=None, *, quality="Q1+Q2+Q3", n_thresholds=16, min_samples_leaf=1, reg=1e-4, reduce_dims=4, seed=0, n_threads=None))]
+#[pyo3(signature = (features, targets, *, quality="Q1+Q2+Q3", n_thresholds=16, min_samples_leaf=1, reg=1e-4, reduce_dims=4, seed=0, n_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn split_search<'py>(
     py: Python<'py>,
     features: &Bound<'py, PyAny>,
-    offsets: &Bound<'py, PyAny>,
-    rotations: &Bound<'py, PyAny>,
-    link_angles: Option<&Bound<'py, PyAny>>,
-    node_offsets: Option<&Bound<'py, PyAny>>,
+    targets: &Bound<'py, PyAny>,
     quality: &str,
     n_thresholds: usize,
     min_samples_leaf: usize,
@@ -146,9 +97,9 @@ pub fn split_search<'py>(
     n_threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let q = Quality::parse(quality).map_err(to_py)?;
-    let r = Raw::new(offsets, rotations, link_angles, node_offsets)?;
-    let n = r.off.shape()[0];
-    let fa = f32_2d(features, "features", Some(n), None)?;
+    let r = targets_arg(targets)?;
+    let n = r.n_parts();
+    let fa = f32_array(features, "features", &[Some(n), None])?;
     let c = fa.shape()[1];
     if n_thresholds == 0 || reg.is_nan() || reg <= 0.0 {
         return Err(param_err("n_thresholds must be >= 1 and reg > 0"));

@@ -3,18 +3,19 @@
 
 use std::path::PathBuf;
 
-use numpy::prelude::*;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use isa_core::trainset_io::{self, TrainSetData};
 
-use crate::arrays::{array, as_slice, depth_store, given, matrix, parts as parts_arg, rows};
+use crate::arrays::{depth_store, matrix, parts as parts_arg, rows, Targets};
 use crate::errors::to_py;
 
 /// Writes a training-set file (`.isat`, see `isa_core::trainset_io`) for `isa train`: the same
 /// arguments as `Forest.fit` (images: list of (h, w) uint16 crops; parts (P, 3) int32; offsets
 /// (P, 3), rotations (P, 4), link_angles (P, L), node_offsets (P, 3N) float32) plus metadata JSON.
+// Its array arguments are `Forest.fit`'s on purpose (the public API; converted by the same
+// `arrays::Targets`).
 #[pyfunction]
 #[pyo3(signature = (path, images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}"))]
 #[allow(clippy::too_many_arguments)]
@@ -31,22 +32,16 @@ pub fn write_trainset(
 ) -> PyResult<()> {
     let store = depth_store(images)?;
     let parts = parts_arg(parts)?;
-    let n = parts.len();
-    let f32_vec =
-        |obj: &Bound<'_, PyAny>, name: &str, cols: Option<usize>| -> PyResult<(Vec<f32>, usize)> {
-            let a = array::<f32>(obj, name, "float32", &[Some(n), cols])?;
-            Ok((as_slice(&a, name)?.to_vec(), a.shape()[1]))
-        };
-    let opt = |o: Option<&Bound<'_, PyAny>>, name: &str| -> PyResult<Option<(Vec<f32>, usize)>> {
-        given(o).map(|o| f32_vec(o, name, None)).transpose()
-    };
+    let t = Targets::new(Some(parts.len()), offsets, rotations, link_angles, node_offsets)?;
+    let raw = t.raw();
+    let owned = |a: Option<(&[f32], usize)>| a.map(|(v, c)| (v.to_vec(), c));
     let ts = TrainSetData {
         store,
         parts,
-        offsets: f32_vec(offsets, "offsets", Some(3))?.0,
-        rotations: f32_vec(rotations, "rotations", Some(4))?.0,
-        link_angles: opt(link_angles, "link_angles")?,
-        node_offsets: opt(node_offsets, "node_offsets")?,
+        offsets: raw.offsets.to_vec(),
+        rotations: raw.rotations.to_vec(),
+        link_angles: owned(raw.link_angles),
+        node_offsets: owned(raw.node_offsets),
         metadata: metadata.to_string(),
     };
     py.detach(|| trainset_io::write(&ts, &path)).map_err(to_py)
@@ -80,7 +75,6 @@ pub fn read_trainset(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict
     d.set_item("metadata", ts.metadata)?;
     Ok(d)
 }
-
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TRAINSET_FORMAT_VERSION", trainset_io::FORMAT_VERSION)?;

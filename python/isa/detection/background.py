@@ -44,6 +44,15 @@ class LeafForeground:
     n_positive: int
     n_negative: int
 
+    def leaf_weights(self, forest) -> list[np.ndarray]:
+        """The probabilities as :meth:`isa.forest.model.Forest.with_leaf_weights` takes them (one
+        array of each tree's leaves)."""
+        if len(forest.n_leaves) != self.probs.shape[0] or max(forest.n_leaves) > self.probs.shape[1]:
+            raise InvalidValueError(f"{self.category} leaf foreground: {self.probs.shape[0]} trees of "
+                                    f"{self.probs.shape[1]} leaves do not fit a forest of {len(forest.n_leaves)} trees "
+                                    f"with up to {max(forest.n_leaves)} leaves")
+        return [self.probs[t, :n] for t, n in enumerate(forest.n_leaves)]
+
     def of(self, leaves: np.ndarray) -> np.ndarray:
         """Probabilities (P, T) of the leaf ids (P, T)."""
         T = self.probs.shape[0]
@@ -91,8 +100,10 @@ def fit_leaf_foreground(forest, images: Sequence[np.ndarray], parts: np.ndarray,
 def weighted_predict(forest, fg: LeafForeground | None, depth: np.ndarray, intrinsics: Intrinsics, stride: int = 4,
                      power: float = 1.0, **params) -> list[dict]:
     """:meth:`isa.forest.model.Forest.predict` with every vote weighted by ``p(object | leaf) ** power``
-    (``fg`` None: the plain votes, through the same path). ``params``: the mode-finding keywords
-    of :func:`isa._core.find_modes` (default: the model's inference defaults, ``Forest.predict_defaults``)."""
+    in NumPy, from the votes of every part (the reference the core's leaf weights are tested
+    against): ``fg``'s probabilities, else the forest's own leaf weights, else the plain votes
+    through the same path. ``params``: the mode-finding keywords of :func:`isa._core.find_modes`
+    (default: the model's inference defaults, ``Forest.predict_defaults``)."""
     from isa import _core
 
     img = depth_mm(depth)
@@ -105,9 +116,13 @@ def weighted_predict(forest, fg: LeafForeground | None, depth: np.ndarray, intri
                            (parts[:, 2] - intrinsics.cy) * z / intrinsics.fy, z])
     pos = (pts[v["part"]] + v["offset"]).astype(np.float32)
     w = v["weight"].astype(np.float64) / forest.n_trees
-    if fg is not None:
+    weights = fg.leaf_weights(forest) if fg is not None else forest.leaf_weights
+    if weights is not None:
+        table = np.zeros((len(weights), max(len(t) for t in weights)))
+        for t, row in enumerate(weights):
+            table[t, :len(row)] = row
         leaves = forest.apply([img], parts)
-        w = w * fg.probs[v["tree"], leaves[v["part"], v["tree"]]] ** power
+        w = w * table[v["tree"], leaves[v["part"], v["tree"]]] ** power
     kw = {**forest.predict_defaults, **params}
     for k in ("stride", "min_depth", "max_depth", "min_leaf_weight"):
         kw.pop(k, None)
@@ -150,7 +165,7 @@ def context_foreground(forest, objects, category: str, views: int, out_dir: str 
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m isa.detection.background MESHES --category C --model C.isa -o C.foreground.npz``:
+    """``python -m isa.detection.background MESHES --category C --model C.isa -o C-bg.isa``:
     leaf probabilities from in-context views of the model's training instances (the same
     ``MESHES`` / ``--instances`` / ``--seed`` as ``python -m isa train``)."""
     import argparse
@@ -171,7 +186,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--training-seed", type=int, default=0, help="the seed the instances were sized with")
     ap.add_argument("--seed", type=int, default=1, help="the rooms' seed (not the training views')")
     ap.add_argument("--renders", type=Path, required=True, help="folder for the rendered views (resumable)")
-    ap.add_argument("-o", "--out", required=True, type=Path, help="<category>.foreground.npz to write")
+    ap.add_argument("-o", "--out", required=True, type=Path,
+                    help="C.isa: the model with these leaf weights (model format 3); "
+                         "C.foreground.npz: the probabilities alone (load_model's foreground=)")
     a = ap.parse_args(argv)
     try:
         if not a.model.is_file():
@@ -182,7 +199,10 @@ def main(argv: list[str] | None = None) -> None:
         fg = context_foreground(forest, prepared.objects, a.category, a.views, a.renders, seed=a.seed,
                                 stride=a.stride, prior=a.prior)
         a.out.parent.mkdir(parents=True, exist_ok=True)
-        fg.save(a.out)
+        if a.out.suffix == ".isa":
+            forest.with_leaf_weights(fg.leaf_weights(forest)).save(a.out)
+        else:
+            fg.save(a.out)
     except IsaError as exc:
         ap.exit(2, f"error: {exc}\n")
     print(f"{a.out}: {fg.n_positive} parts on {a.category} instances, {fg.n_negative} off")

@@ -15,7 +15,8 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
 - ``refine``: + upright ICP of the best hypotheses, + 0.05 x the log of the forest's score (the
   default pipeline);
 - ``turnsN``: ``refine`` also verifying each hypothesis turned by 360/N degree steps;
-- ``foreground``: ``refine`` with the votes weighted by the leaf foreground probabilities;
+- ``foreground``: ``refine`` keeping the forests' leaf weights (in their model files, or from
+  ``--foreground DIR``); every other variant votes without them;
 - ``nogravity``: ``refine`` without the scene's gravity (floor normal, else the votes' tilt);
 - ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one
   (``fw0``: none).
@@ -73,7 +74,8 @@ def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[l
     if name == "baseline":
         return detect_views({m.category: m.forest for m in models}, views, progress=progress, desc=name)
     params = variant_params(name)
-    use = models if name == "foreground" else [replace(m, foreground=None) for m in models]
+    # Only the ``foreground`` variant keeps the forests' leaf weights.
+    use = models if name == "foreground" else [replace(m, forest=m.forest.with_leaf_weights(None)) for m in models]
     if name == "forest":
         use = [replace(m, shapes=None) for m in use]
     out, secs = [], []

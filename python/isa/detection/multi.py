@@ -16,9 +16,8 @@
 
 The core runs every step (``isa._core.detect``, ``isa_core::scene::detect``; categories and
 hypotheses in parallel); this module loads models, mirrors the parameters (defaults from
-``isa._core.DETECT_DEFAULTS``) and wraps the answer. Models with leaf foreground probabilities
-(:mod:`isa.detection.background`) vote here (``weighted_predict``) on the core's cleaned depth
-and hand their hypotheses to the core.
+``isa._core.DETECT_DEFAULTS``) and wraps the answer. A forest with leaf weights from background
+parts (:mod:`isa.detection.background`, kept in its model file) weights its votes in the core.
 """
 
 from __future__ import annotations
@@ -32,8 +31,8 @@ import numpy as np
 
 from isa import _core, atomic
 from isa.camera import Intrinsics
-from isa.detection.gravity import GravityEstimate, estimate_gravity
-from isa.detection.planes import PlaneParams
+from isa.detection.gravity import GravityEstimate
+from isa.detection.planes import PlaneParams, checked_depth
 from isa.detection.refine import RefineParams
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import VerifyParams
@@ -48,23 +47,24 @@ __all__ = ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "Det
 
 @dataclass(frozen=True, eq=False)
 class CategoryModel:
-    """A category's forest, its box (size and origin offset, :class:`isa.detection.CategoryBox`),
-    its shape library (None: no verification, the forest's score and box are used) and its leaf
-    foreground probabilities (:mod:`isa.detection.background`; None: every vote counts fully)."""
+    """A category's forest (with its leaf weights, if any: :mod:`isa.detection.background`),
+    its box (size and origin offset, :class:`isa.detection.CategoryBox`) and its shape library
+    (None: no verification, the forest's score and box are used)."""
 
     category: str
     forest: Any
     box: Any
     shapes: ShapeLibrary | None = None
-    foreground: Any = None
 
 
 def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None,
                category: str | None = None, foreground: str | Path | None = None) -> CategoryModel:
     """A :class:`CategoryModel` from a model file; ``shapes`` a library or its ``.isl`` / ``.npz``
     (default: ``<model>.shapes.isl``, else ``<model>.shapes.npz``, beside the model when it
-    exists); ``foreground`` likewise
-    (``<model>.foreground.npz``)."""
+    exists); ``foreground`` a leaf foreground file (``.foreground.npz``, as
+    ``python -m isa.detection.background -o X.npz`` writes; default ``<model>.foreground.npz``
+    when it exists) whose probabilities become the forest's leaf weights, replacing any the
+    model file holds."""
     from isa.detection.background import LeafForeground
     from isa.detection.category_boxes import model_box
     from isa.forest.model import Forest
@@ -81,9 +81,10 @@ def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None
         shapes = ShapeLibrary.load(shapes)
     if foreground is None and path.with_suffix(".foreground.npz").is_file():
         foreground = path.with_suffix(".foreground.npz")
-    if foreground is not None and not isinstance(foreground, LeafForeground):
-        foreground = LeafForeground.load(foreground)
-    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes, foreground)
+    if foreground is not None:
+        fg = foreground if isinstance(foreground, LeafForeground) else LeafForeground.load(foreground)
+        forest = forest.with_leaf_weights(fg.leaf_weights(forest))
+    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes)
 
 
 @dataclass(frozen=True)
@@ -218,24 +219,6 @@ def _size_range(m: CategoryModel):
     return None if r is None else (tuple(r.height), tuple(r.length))
 
 
-def _votes_here(ms: Sequence[CategoryModel], depth, intrinsics, gravity, params: DetectParams):
-    """For models with leaf foregrounds: gravity, the planes (the core's) and every model's
-    hypotheses voted here, to hand to the core (``(gravity or None, planes, hypotheses per model)``)."""
-    from isa.detection.background import weighted_predict
-
-    grav = estimate_gravity(depth, intrinsics, gravity)
-    planes = None
-    clean = depth
-    if params.remove_planes:
-        planes = _core.find_planes(depth, intrinsics, grav.R, params.planes.to_dict())
-        clean = np.where(planes["removed"], np.float32(0), depth)
-    kw = {"stride": params.stride, "max_hypotheses": params.max_hypotheses, **params.predict}
-    hyps = [weighted_predict(m.forest, m.foreground, clean, intrinsics, **kw) if m.foreground is not None else
-            m.forest.predict(clean, intrinsics, **kw) for m in ms]
-    # No gravity found: let the core take it from the votes, as it does for its own.
-    return (None if grav.source == "level" else grav.R), grav, planes, hyps
-
-
 def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarray | None = None,
            params: DetectParams = DetectParams()) -> DetectResult:
     """Every category of ``models`` in one depth frame, one ranked list (module docstring).
@@ -244,24 +227,17 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     model path / :class:`isa.forest.model.Forest` / :class:`CategoryModel`, or a sequence of
     :class:`CategoryModel`; ``gravity`` the camera -> upright rotation when known.
     """
-    depth = _to_metres(depth)
-    if depth.shape != (intrinsics.height, intrinsics.width):
-        raise InvalidValueError(f"detect: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
-                         f"{intrinsics.width}x{intrinsics.height}")
+    depth = checked_depth(_to_metres(depth), intrinsics, "detect")
     ms = _models(models)
     g = None if gravity is None else np.asarray(gravity, dtype=float).reshape(3, 3)
-    planes, hyps, source = None, [None] * len(ms), None
-    if any(m.foreground is not None for m in ms):
-        g, grav, planes, hyps = _votes_here(ms, depth, intrinsics, g, params)
-        source = grav.source if g is not None else None
     specs = [{"category": m.category, "forest": m.forest, "size": m.box.size, "ssc_offset": m.box.ssc_offset,
-              "shapes": None if m.shapes is None else m.shapes.core, "size_range": _size_range(m), "hypotheses": h}
-             for m, h in zip(ms, hyps)]
-    out = _core.detect(np.ascontiguousarray(depth), intrinsics, specs, g, planes, params.to_dict())
+              "shapes": None if m.shapes is None else m.shapes.core, "size_range": _size_range(m)}
+             for m in ms]
+    out = _core.detect(np.ascontiguousarray(depth), intrinsics, specs, g, params=params.to_dict())
     dets = [SceneDetection(d["category"], d["R"], d["t"], d["size"], d["box_centre"], d["score"], d["support"],
                            {k: d[k] for k in ("forest_score", "rank", "tilt_deg", "shape", "refined", "turn")})
             for d in out["detections"]]
-    grav = GravityEstimate(out["gravity"], source or out["gravity_source"])
+    grav = GravityEstimate(out["gravity"], out["gravity_source"])
     return DetectResult(dets, grav, out["floor_height"], dict(out["seconds"]))
 
 

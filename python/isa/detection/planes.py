@@ -7,19 +7,20 @@ holds the parameters (defaults from ``isa._core.DETECT_DEFAULTS``) and the resul
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from isa import _core
 from isa.camera import Intrinsics
+from isa.detection.stage_params import StageParams
 from isa.exceptions import InvalidValueError
 
 _D = _core.DETECT_DEFAULTS["planes"]
 
 
 @dataclass(frozen=True)
-class PlaneParams:
+class PlaneParams(StageParams):
     """Plane finding. ``tolerance`` ``(base, k)``: a point is on a plane within
     ``max(base, k * depth**2)`` metres (Kinect noise grows with the square of the depth; k = 3
     sigma of Khoshelham & Elberink's 1.5e-3 z**2). The floor must hold ``min_floor_fraction`` of
@@ -43,9 +44,6 @@ class PlaneParams:
     samples: int = _D["samples"]
     check_samples: int = _D["check_samples"]
     seed: int = _D["seed"]
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +88,18 @@ class PlaneRemoval:
         return next((p for p in self.planes if p.kind == "floor"), None)
 
 
+def checked_depth(depth: np.ndarray, intrinsics: Intrinsics, caller: str) -> np.ndarray:
+    """``depth`` as a C-contiguous float32 (H, W) array of the ``intrinsics``' size; the error
+    names ``caller``."""
+    depth = np.ascontiguousarray(depth, dtype=np.float32)
+    if depth.ndim != 2:
+        raise InvalidValueError(f"{caller}: depth must be (H, W), got {depth.shape}")
+    if depth.shape != (intrinsics.height, intrinsics.width):
+        raise InvalidValueError(f"{caller}: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
+                                f"{intrinsics.width}x{intrinsics.height}")
+    return depth
+
+
 def remove_planes(depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarray, params: PlaneParams = PlaneParams(),
                   floor: bool = True, walls: bool = True) -> PlaneRemoval:
     """Set the pixels of the floor (and everything under it) and of walls to 0 (missing).
@@ -97,12 +107,7 @@ def remove_planes(depth: np.ndarray, intrinsics: Intrinsics, R_gravity: np.ndarr
     ``depth`` (H, W) float metres, 0 = missing; ``R_gravity`` camera to upright (``X_up = R_gravity
     @ X_cam``). See :class:`PlaneParams` for what counts as a floor or a wall.
     """
-    depth = np.ascontiguousarray(depth, dtype=np.float32)
-    if depth.ndim != 2:
-        raise InvalidValueError(f"remove_planes: depth must be (H, W), got {depth.shape}")
-    if depth.shape != (intrinsics.height, intrinsics.width):
-        raise InvalidValueError(f"remove_planes: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
-                         f"{intrinsics.width}x{intrinsics.height}")
+    depth = checked_depth(depth, intrinsics, "remove_planes")
     found = _core.find_planes(depth, intrinsics, np.asarray(R_gravity, dtype=float).reshape(3, 3), params.to_dict(),
                               floor, walls)
     return removal_from_core(depth, found)

@@ -9,12 +9,13 @@ and translation in the upright frame (a 2D Procrustes problem plus the mean heig
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from isa import _core
 from isa.camera import Intrinsics
+from isa.detection.stage_params import StageParams
 
 __all__ = ["RefineParams", "Refinement", "upright_points", "refine_pose"]
 
@@ -22,7 +23,7 @@ _D = _core.DETECT_DEFAULTS["refine"]
 
 
 @dataclass(frozen=True)
-class RefineParams:
+class RefineParams(StageParams):
     """``iterations`` of ICP; the trimming distance falls from ``max_distance`` to
     ``min_distance`` (metres) geometrically; ``margin`` (metres) around the shape's box that
     observed points are gathered from; ``max_yaw_deg`` / ``max_shift`` bound the total
@@ -41,9 +42,6 @@ class RefineParams:
     max_points: int = _D["max_points"]
     cell_px: int = _D["cell_px"]
     fix_height: bool = _D["fix_height"]
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

@@ -28,12 +28,13 @@ holds the parameters (defaults from ``isa._core.DETECT_DEFAULTS``) and the resul
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from isa import _core
 from isa.camera import Intrinsics
+from isa.detection.stage_params import StageParams
 from isa.exceptions import InvalidValueError
 
 __all__ = ["VerifyParams", "Verification", "DepthEvidence", "verify_pose", "verify_shapes"]
@@ -42,7 +43,7 @@ _D = _core.DETECT_DEFAULTS["verify"]
 
 
 @dataclass(frozen=True)
-class VerifyParams:
+class VerifyParams(StageParams):
     """``tolerance`` ``(base, k)``: a cell agrees within ``max(base, k * z**2)`` metres (Kinect
     noise grows with z squared; as :class:`isa.detection.planes.PlaneParams`); ``violation_weight``
     what one seen-through cell costs against one agreeing; ``cell_spacing`` the grid cell side
@@ -62,9 +63,6 @@ class VerifyParams:
     min_cells: int = _D["min_cells"]
     lateral: float = _D["lateral"]
     lateral_fraction: float = _D["lateral_fraction"]
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

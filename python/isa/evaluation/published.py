@@ -34,6 +34,7 @@ POSE_RECALL: dict[str, dict[str, float]] = {
     "Linemod (all)": {"bed": 60, "chair": 32, "table": 37, "toilet": 58},
 }
 
+# The two tables are alike in form as the paper's are (a row of four category values per method).
 #: Table 2 (right): 3D detection AP in percent on RMRC / NYU Depth v2 frames (IoU >= 0.25).
 DETECTION_AP: dict[str, dict[str, float]] = {
     "Sliding Shapes": {"bed": 33.5, "chair": 29.0, "table": 34.5, "toilet": 67.3},

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
@@ -210,6 +211,20 @@ class Forest:
     def leaf_votes(self, tree: int, leaf: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(weights (k,), offsets (k, 3), rotations (k, 4)) of one leaf."""
         return self._core.leaf_votes(tree, leaf)
+
+    def with_leaf_weights(self, weights: Sequence[np.ndarray] | None) -> Forest:
+        """This forest with per-leaf vote weights: ``weights[t][l]`` in [0, 1] multiplies every
+        vote of leaf ``l`` of tree ``t`` in :meth:`predict` (how likely a part reaching that leaf
+        lies on the category, :mod:`isa.detection.background`), one array of ``n_leaves[t]`` per
+        tree; None: one-class, every vote counts fully. Saved in the model file (format version
+        3). A new forest; this one is unchanged."""
+        rows = None if weights is None else [np.ascontiguousarray(w, dtype=np.float32) for w in weights]
+        return self._wrap(self._core.with_leaf_weights(rows))
+
+    @property
+    def leaf_weights(self) -> list[np.ndarray] | None:
+        """The per-leaf vote weights (one array per tree), or None (see :meth:`with_leaf_weights`)."""
+        return self._core.leaf_weights
 
     # -- inference ---------------------------------------------------------------------------
     def predict(self, depth: np.ndarray, intrinsics: Any, **params: Any) -> list[_core.Hypothesis]:

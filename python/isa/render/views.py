@@ -91,7 +91,13 @@ def fit_distance(R: np.ndarray, points, target, intrinsics: Intrinsics = KINECT_
     return float(d.max())
 
 
-def _views_from(dirs: np.ndarray, dist: np.ndarray, target, roll: np.ndarray, fit_points=None, intrinsics: Intrinsics = KINECT_V1) -> Views:
+def _views_from(dirs: np.ndarray, rng: np.random.Generator, distance: tuple[float, float], roll_deg: float, target,
+                fit_points, intrinsics: Intrinsics) -> Views:
+    """Views along ``dirs`` from ``target``, distances uniform in ``distance`` and rolls in +-``roll_deg``
+    drawn from ``rng`` (the samplers' common last step)."""
+    n = len(dirs)
+    dist = rng.uniform(*distance, size=n)
+    roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
     target = np.asarray(target, float)
     Rs, ts, eyes = [], [], []
     for d, r, dirn in zip(dist, roll, dirs):
@@ -125,11 +131,11 @@ def training_views(
     """
     rng = np.random.default_rng(seed)
     dirs = hemisphere_directions(n, elevation_deg, azimuth0=rng.uniform(0, 2 * np.pi))
-    dist = rng.uniform(*distance, size=n)
-    roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
-    return _views_from(dirs, dist, target, roll, fit_points, intrinsics)
+    return _views_from(dirs, rng, distance, roll_deg, target, fit_points, intrinsics)
 
 
+# The view-band keywords (distance ... intrinsics) are training_views' on purpose: one set of them
+# describes both the training and the test views of a dataset.
 def sample_test_views(
     n: int,
     seed: int = 1,
@@ -162,6 +168,4 @@ def sample_test_views(
             dirs.append(d)
     if len(dirs) < n:
         raise InvalidValueError(f"sample_test_views: could not place {n} views {min_separation_deg} deg away from the training views")
-    dist = rng.uniform(*distance, size=n)
-    roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
-    return _views_from(np.array(dirs).reshape(-1, 3), dist, target, roll, fit_points, intrinsics)
+    return _views_from(np.array(dirs).reshape(-1, 3), rng, distance, roll_deg, target, fit_points, intrinsics)

@@ -13,6 +13,9 @@
 //! trees: divide accumulated weights by `n_trees()`.
 
 pub(crate) mod flat;
+mod leaf_weights;
+
+pub use leaf_weights::LeafWeights;
 
 use rand::seq::index::sample;
 use rand::SeedableRng;
@@ -103,6 +106,9 @@ pub struct Forest {
     pub predict_defaults: Valid<PredictParams>,
     /// Version of the crate that trained (or wrote) this forest.
     pub crate_version: String,
+    /// Per-leaf vote weights from background parts (`None`: one-class, every vote counts
+    /// fully); set with [`Forest::with_leaf_weights`].
+    pub leaf_weights: Option<LeafWeights>,
     /// The trees prepared for fast inference (built on the first prediction).
     pub(crate) flat: flat::FlatCache,
 }
@@ -319,8 +325,16 @@ impl Forest {
             metadata,
             predict_defaults: Valid::default(),
             crate_version: crate::VERSION.to_string(),
+            leaf_weights: None,
             flat: Default::default(),
         })
+    }
+
+    /// This forest with per-leaf vote weights (one per leaf of each tree, in [0, 1]; see
+    /// [`LeafWeights`]), or without any (`None`).
+    pub fn with_leaf_weights(mut self, per_tree: Option<Vec<Vec<f32>>>) -> Result<Forest> {
+        self.leaf_weights = per_tree.map(|w| LeafWeights::new(w, &self.trees)).transpose()?;
+        Ok(self)
     }
 
     pub fn n_trees(&self) -> usize {

@@ -8,31 +8,12 @@ use serde_json::Value;
 
 use super::overlay::overlay_json;
 use super::Valid;
-use crate::error::{IsaError, Result};
+use super::checks::{at_least_one, bad, non_negative, positive};
+use crate::error::Result;
 
 /// The Kinect depth tolerance `(base, k)`: `max(base, k z^2)` metres (as
 /// `isa.render.noise.DEPTH_TOLERANCE`; k = 3 sigma of Khoshelham & Elberink's 1.5e-3 z^2).
 pub const DEPTH_TOLERANCE: [f64; 2] = [0.03, 0.0045];
-
-fn bad<T>(name: &str, why: String) -> Result<T> {
-    Err(IsaError::InvalidParameter(format!("{name} {why}")))
-}
-
-fn positive(name: &str, x: f64) -> Result<()> {
-    if x.is_finite() && x > 0.0 {
-        Ok(())
-    } else {
-        bad(name, format!("must be finite and > 0, got {x}"))
-    }
-}
-
-fn non_negative(name: &str, x: f64) -> Result<()> {
-    if x.is_finite() && x >= 0.0 {
-        Ok(())
-    } else {
-        bad(name, format!("must be finite and >= 0, got {x}"))
-    }
-}
 
 fn tolerance(name: &str, t: [f64; 2]) -> Result<()> {
     positive(&format!("{name}[0]"), t[0])?;
@@ -104,16 +85,11 @@ impl PlaneParams {
         ] {
             non_negative(n, x)?;
         }
-        for (n, x) in [
+        at_least_one(&[
             ("planes.ransac_iterations", self.ransac_iterations),
             ("planes.samples", self.samples),
             ("planes.check_samples", self.check_samples),
-        ] {
-            if x == 0 {
-                return bad(n, "must be >= 1, got 0".into());
-            }
-        }
-        Ok(())
+        ])
     }
 }
 
@@ -158,10 +134,7 @@ impl VerifyParams {
         positive("verify.cell_spacing", self.cell_spacing)?;
         non_negative("verify.lateral", self.lateral)?;
         non_negative("verify.lateral_fraction", self.lateral_fraction)?;
-        if self.min_cell_px == 0 {
-            return bad("verify.min_cell_px", "must be >= 1, got 0".into());
-        }
-        Ok(())
+        at_least_one(&[("verify.min_cell_px", self.min_cell_px)])
     }
 }
 

@@ -3,6 +3,7 @@
 use serde::{Deserialize, Deserializer, Serialize};
 use serde_json::Value;
 
+use super::checks::in_range;
 use super::overlay::overlay_json;
 use super::Valid;
 use crate::error::{IsaError, Result};
@@ -161,12 +162,7 @@ impl ForestParams {
         fn bad(msg: String) -> Result<()> {
             Err(IsaError::InvalidParameter(msg))
         }
-        if self.n_trees == 0 || self.n_trees > 10_000 {
-            return bad(format!(
-                "n_trees must be in 1..=10000, got {}",
-                self.n_trees
-            ));
-        }
+        in_range("n_trees", self.n_trees, 1, 10_000)?;
         if self.max_depth > 64 {
             return bad(format!(
                 "max_depth must be at most 64, got {}",
@@ -185,18 +181,8 @@ impl ForestParams {
         if !self.min_gain.is_finite() {
             return bad(format!("min_gain must be finite, got {}", self.min_gain));
         }
-        if self.n_candidates == 0 || self.n_candidates > 100_000 {
-            return bad(format!(
-                "n_candidates must be in 1..=100000, got {}",
-                self.n_candidates
-            ));
-        }
-        if self.n_thresholds == 0 || self.n_thresholds > 255 {
-            return bad(format!(
-                "n_thresholds must be in 1..=255, got {}",
-                self.n_thresholds
-            ));
-        }
+        in_range("n_candidates", self.n_candidates, 1, 100_000)?;
+        in_range("n_thresholds", self.n_thresholds, 1, 255)?;
         if !(self.max_offset.is_finite()
             && self.max_offset > 0.0
             && self.max_offset <= crate::features::MAX_FEATURE_OFFSET)
@@ -228,18 +214,8 @@ impl ForestParams {
                 self.bag_fraction
             ));
         }
-        if self.leaf_modes == 0 || self.leaf_modes > 64 {
-            return bad(format!(
-                "leaf_modes must be in 1..=64, got {}",
-                self.leaf_modes
-            ));
-        }
-        if self.leaf_max_points == 0 || self.leaf_max_points > 100_000 {
-            return bad(format!(
-                "leaf_max_points must be in 1..=100000, got {}",
-                self.leaf_max_points
-            ));
-        }
+        in_range("leaf_modes", self.leaf_modes, 1, 64)?;
+        in_range("leaf_max_points", self.leaf_max_points, 1, 100_000)?;
         if !(self.vote_bandwidth_offset.is_finite() && self.vote_bandwidth_offset > 0.0) {
             return bad(format!(
                 "vote_bandwidth_offset must be > 0 metres, got {}",

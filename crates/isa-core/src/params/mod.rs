@@ -9,6 +9,7 @@
 //! ([`ForestParams::overlay`], [`PredictParams::overlay`], [`VoteParams::overlay`]) whose
 //! messages name the key and where it came from.
 
+mod checks;
 mod detect;
 mod forest;
 mod overlay;

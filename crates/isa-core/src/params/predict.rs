@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use super::overlay::{known_keys, overlay_json};
+use super::checks::{at_least_one, bad};
 use super::Valid;
 use crate::error::{IsaError, Result};
 
@@ -71,8 +72,6 @@ impl Default for VoteParams {
 impl VoteParams {
     /// Checks every field; the error names the parameter at fault.
     pub fn validate(&self) -> Result<()> {
-        let bad =
-            |name: &str, why: String| Err(IsaError::InvalidParameter(format!("{name} {why}")));
         let h = self.position_bandwidth;
         if !(h.is_finite() && h > 1e-4 && h < 1e3) {
             return bad(
@@ -93,7 +92,7 @@ impl VoteParams {
                 format!("must be finite and >= 0, got {}", self.nms_radius),
             );
         }
-        for (name, v) in [
+        at_least_one(&[
             ("max_hypotheses", self.max_hypotheses),
             ("max_seeds", self.max_seeds),
             ("max_iterations", self.max_iterations),
@@ -103,12 +102,7 @@ impl VoteParams {
             ("coarse_votes", self.coarse_votes),
             ("refine_modes", self.refine_modes),
             ("refine_votes", self.refine_votes),
-        ] {
-            if v == 0 {
-                return bad(name, "must be >= 1, got 0".into());
-            }
-        }
-        Ok(())
+        ])
     }
 }
 

@@ -143,20 +143,25 @@ const MAX_LANES: usize = 10;
 /// Target size of a candidate group's f32 partial sums (kept in L1 while a block streams by).
 const GROUP_BYTES: usize = 24 * 1024;
 
+/// One block's inputs: `z` (rows of stride `mp`), the parts `js = (j0, j1)`, their `bins`, the
+/// candidates `grp = (c0, g, nb)` (first, count, bins per candidate) and the column chunk's
+/// first lane `k0`.
+#[derive(Clone, Copy)]
+struct Block<'a> {
+    z: &'a [f32],
+    mp: usize,
+    js: (usize, usize),
+    bins: BinMatrix<'a>,
+    grp: (usize, usize, usize),
+    k0: usize,
+}
+
 /// Adds `z[j, k0..k0 + 8W]` of the parts `j0..j1` into `part[(gi, bin_gi(j)), k0..]` for the
 /// `g` candidates `c0..c0 + g` (portable path; the loop nest keeps one row chunk in registers
 /// while it is added into every candidate's bin).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn add_block_lanes<const W: usize>(
-    z: &[f32],
-    mp: usize,
-    (j0, j1): (usize, usize),
-    bins: BinMatrix<'_>,
-    (c0, g, nb): (usize, usize, usize),
-    k0: usize,
-    part: &mut [f32],
-) {
+fn add_block_lanes<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
+    let Block { z, mp, js: (j0, j1), bins, grp: (c0, g, nb), k0 } = blk;
     for j in j0..j1 {
         let zr = &z[j * mp + k0..j * mp + k0 + 8 * W];
         let mut v = [[0f32; 8]; W];
@@ -184,17 +189,9 @@ fn add_block_lanes<const W: usize>(
 /// `k0 + 8W <= mp`, and `z` and `part` are 32-byte aligned with `mp % 8 == 0`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn add_block_lanes_avx2<const W: usize>(
-    z: &[f32],
-    mp: usize,
-    (j0, j1): (usize, usize),
-    bins: BinMatrix<'_>,
-    (c0, g, nb): (usize, usize, usize),
-    k0: usize,
-    part: &mut [f32],
-) {
+unsafe fn add_block_lanes_avx2<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
     use std::arch::x86_64::*;
+    let Block { z, mp, js: (j0, j1), bins, grp: (c0, g, nb), k0 } = blk;
     debug_assert!(z.len() >= j1 * mp && part.len() >= g * nb * mp);
     let (sj, sc) = (bins.part_stride, bins.cand_stride);
     let (zp, pp) = (z.as_ptr(), part.as_mut_ptr());
@@ -238,6 +235,7 @@ fn add_block(
     k0: usize,
     part: &mut [f32],
 ) {
+    let blk = Block { z, mp, js, bins, grp, k0 };
     macro_rules! dispatch {
         ($($w:literal)*) => {
             match lanes {
@@ -246,10 +244,10 @@ fn add_block(
                     if avx2 {
                         // SAFETY: AVX2 checked by the caller; sizes and bin range checked in
                         // `accumulate_group`; z and part are 32-byte aligned with mp % 8 == 0.
-                        unsafe { add_block_lanes_avx2::<$w>(z, mp, js, bins, grp, k0, part) };
+                        unsafe { add_block_lanes_avx2::<$w>(blk, part) };
                         return;
                     }
-                    add_block_lanes::<$w>(z, mp, js, bins, grp, k0, part)
+                    add_block_lanes::<$w>(blk, part)
                 })*
                 _ => unreachable!("column chunk of {lanes} lanes"),
             }
@@ -283,7 +281,19 @@ pub(super) fn accumulate_group(
     let avx2 = std::arch::is_x86_feature_detected!("avx2");
     #[cfg(not(target_arch = "x86_64"))]
     let avx2 = false;
-    accumulate_group_with(avx2, z, m, n, bins, c0, nct, nb)
+    accumulate_group_with(avx2, Group { z, m, n, bins, c0, nct, nb })
+}
+
+/// The arguments of [`accumulate_group`], passed on to its AVX2 and portable bodies.
+#[derive(Clone, Copy)]
+struct Group<'a> {
+    z: &'a [f32],
+    m: usize,
+    n: usize,
+    bins: BinMatrix<'a>,
+    c0: usize,
+    nct: usize,
+    nb: usize,
 }
 
 /// Candidates per group: their f32 partial sums (one column chunk) fit in [`GROUP_BYTES`].
@@ -293,56 +303,27 @@ pub(super) fn group_size(mp: usize, nb: usize) -> usize {
 }
 
 /// [`accumulate_group`] on the AVX2 path (`avx2`, which must be available) or the portable one.
-#[allow(clippy::too_many_arguments)]
-fn accumulate_group_with(
-    avx2: bool,
-    z: &[f32],
-    m: usize,
-    n: usize,
-    bins: BinMatrix<'_>,
-    c0: usize,
-    nct: usize,
-    nb: usize,
-) -> Vec<f64> {
-    let mp = z_stride(m);
-    assert!(z.len() >= n * mp && nb <= 256);
+fn accumulate_group_with(avx2: bool, g: Group<'_>) -> Vec<f64> {
+    assert!(g.z.len() >= g.n * z_stride(g.m) && g.nb <= 256);
     #[cfg(target_arch = "x86_64")]
     if avx2 {
         // SAFETY: the caller checked AVX2; sizes checked above, bin range by `score_bins`.
-        return unsafe { accumulate_avx2(z, m, n, bins, c0, nct, nb) };
+        return unsafe { accumulate_avx2(g) };
     }
-    accumulate_body(false, z, m, n, bins, c0, nct, nb)
+    accumulate_body(false, g)
 }
 
 /// # Safety
 /// AVX2 must be available; see [`accumulate_body`].
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn accumulate_avx2(
-    z: &[f32],
-    m: usize,
-    n: usize,
-    bins: BinMatrix<'_>,
-    c0: usize,
-    nct: usize,
-    nb: usize,
-) -> Vec<f64> {
-    accumulate_body(true, z, m, n, bins, c0, nct, nb)
+unsafe fn accumulate_avx2(g: Group<'_>) -> Vec<f64> {
+    accumulate_body(true, g)
 }
 
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn accumulate_body(
-    avx2: bool,
-    z: &[f32],
-    m: usize,
-    n: usize,
-    bins: BinMatrix<'_>,
-    c0: usize,
-    nct: usize,
-    nb: usize,
-) -> Vec<f64> {
+fn accumulate_body(avx2: bool, g: Group<'_>) -> Vec<f64> {
+    let Group { z, m, n, bins, c0, nct, nb } = g;
     let mp = z_stride(m);
     let g = group_size(mp, nb).min(nct.max(1));
     let mut part = AlignedF32::zeros(g * nb * mp);
@@ -430,8 +411,9 @@ mod tests {
                 }
             }
             let z = z.as_slice();
+            let group = |bins, c0, nct| Group { z, m, n, bins, c0, nct, nb };
             let reference =
-                accumulate_group_with(false, z, m, n, BinMatrix::part_major(&pm, nc), 0, nc, nb);
+                accumulate_group_with(false, group(BinMatrix::part_major(&pm, nc), 0, nc));
             // Plain f64 sums of the f32 block sums, the documented order.
             for c in 0..nc {
                 for b in 0..nb {
@@ -454,13 +436,13 @@ mod tests {
                     BinMatrix::part_major(&pm, nc),
                     BinMatrix::candidate_major(&cm, n),
                 ] {
-                    let all = accumulate_group_with(path, z, m, n, bins, 0, nc, nb);
+                    let all = accumulate_group_with(path, group(bins, 0, nc));
                     assert!(all
                         .iter()
                         .zip(&reference)
                         .all(|(a, b)| a.to_bits() == b.to_bits()));
                     for c0 in 0..nc {
-                        let one = accumulate_group_with(path, z, m, n, bins, c0, 1, nb);
+                        let one = accumulate_group_with(path, group(bins, c0, 1));
                         let r = &reference[c0 * nb * mp..(c0 + 1) * nb * mp];
                         assert!(one.iter().zip(r).all(|(a, b)| a.to_bits() == b.to_bits()));
                     }

@@ -334,6 +334,11 @@ fn collect_votes(
                 for (t, tree) in forest.trees.iter().enumerate() {
                     let row = &leaves[t * nb + lo..t * nb + lo + chunk.len()];
                     for ((p, c), &leaf) in chunk.iter().zip(&centres).zip(row) {
+                        // Background-trained forests weight each leaf's votes (exactly 1 otherwise).
+                        let lw = forest
+                            .leaf_weights
+                            .as_ref()
+                            .map_or(1.0, |w| w.get(t, leaf as usize));
                         for v in tree.leaf_votes(leaf as usize) {
                             if v.weight < min_w {
                                 continue;
@@ -345,7 +350,7 @@ fn collect_votes(
                                     c[2] + v.offset[2],
                                 ],
                                 rotation: v.rotation,
-                                weight: v.weight * inv_trees,
+                                weight: v.weight * inv_trees * lw,
                             });
                             if meta {
                                 px_out[j].write([p[1] as u32, p[2] as u32]);
@@ -436,6 +441,7 @@ mod tests {
             metadata: Default::default(),
             predict_defaults: Default::default(),
             crate_version: crate::VERSION.into(),
+            leaf_weights: None,
             flat: Default::default(),
         }
     }
@@ -519,6 +525,57 @@ mod tests {
         assert_ne!(va, vb);
         a.trees = b.trees.clone();
         assert_eq!(votes(&a), vb);
+    }
+
+    /// Leaf weights scale each vote by its (tree, leaf)'s weight, the leaf found by the
+    /// separate `Forest::apply` traversal; weights of 1 change no bit; the weighted model's
+    /// hypotheses keep only the votes the weights keep.
+    #[test]
+    fn leaf_weights_scale_the_votes_of_their_leaves() {
+        use crate::forest::tests::{q1_set, toy, toy_params};
+        let (store, parts, off, rot) = toy(2);
+        let data = q1_set(&store, &parts, &off, &rot);
+        let plain = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), Some(1)).unwrap();
+        let (w, h) = (64usize, 48usize);
+        let depth: Vec<u16> = (0..w * h).map(|i| 1000 + ((i * 37) % 900) as u16).collect();
+        let img = DepthImage::new(&depth, w, h).unwrap();
+        let p = PredictParams {
+            stride: 2,
+            ..Default::default()
+        }
+        .check()
+        .unwrap();
+        // Weight of leaf l of tree t: a value in [0, 1] that differs between leaves and trees.
+        let lw = |t: usize, l: usize| ((t * 7 + l * 3) % 5) as f32 / 4.0;
+        let per_tree = |f: &dyn Fn(usize, usize) -> f32| -> Vec<Vec<f32>> {
+            plain.trees.iter().enumerate().map(|(t, tr)| (0..tr.n_leaves()).map(|l| f(t, l)).collect()).collect()
+        };
+        let ones = plain.clone().with_leaf_weights(Some(per_tree(&|_, _| 1.0))).unwrap();
+        let weighted = plain.clone().with_leaf_weights(Some(per_tree(&lw))).unwrap();
+        let base = image_votes(&plain, &img, &K, &p).unwrap();
+        assert_eq!(image_votes(&ones, &img, &K, &p).unwrap().votes, base.votes);
+        let got = image_votes(&weighted, &img, &K, &p).unwrap();
+        assert_eq!(got.votes.len(), base.votes.len());
+        // The leaf of each vote's part, by the other traversal.
+        let (ds, dparts) = parts_of(&img, &p).unwrap();
+        let leaves = plain.apply(&ds, &dparts).unwrap();
+        let index: std::collections::HashMap<(u32, u32), usize> =
+            dparts.iter().enumerate().map(|(i, q)| ((q[1] as u32, q[2] as u32), i)).collect();
+        let n_t = plain.n_trees();
+        let mut zeroed = 0;
+        for ((g, b), (px, t)) in got.votes.iter().zip(&base.votes).zip(got.pixels.iter().zip(&got.trees)) {
+            let i = index[&(px[0], px[1])];
+            let leaf = leaves[i * n_t + *t as usize] as usize;
+            assert_eq!(g.weight, b.weight * lw(*t as usize, leaf));
+            assert_eq!((g.position, g.rotation), (b.position, b.rotation));
+            zeroed += usize::from(g.weight == 0.0);
+        }
+        assert!(zeroed > 0 && zeroed < got.votes.len(), "the weights must keep some votes and drop others");
+        // Bad weights are refused by name.
+        let e = plain.clone().with_leaf_weights(Some(per_tree(&|_, _| 1.5))).unwrap_err().to_string();
+        assert!(e.contains("tree 0 leaf 0") && e.contains("1.5"), "{e}");
+        let e = plain.clone().with_leaf_weights(Some(vec![vec![1.0]])).unwrap_err().to_string();
+        assert!(e.contains("trees of weights"), "{e}");
     }
 
     #[test]
@@ -653,26 +710,9 @@ mod tests {
             cy: 59.5,
         };
         let (w, h) = (160usize, 120usize);
-        let chair = synth::chair();
-        let mut store = DepthStore::new();
-        let mut poses = Vec::new();
-        for i in 0..12 {
-            let az = i as f64 * std::f64::consts::TAU / 12.0;
-            let pose = synth::look_at(az, 0.35, 2.5);
-            store
-                .push(w, h, &synth::render(&chair, pose.0, pose.1, &k, w, h))
-                .unwrap();
-            poses.push(pose);
-        }
+        let (store, poses) = synth::chair_views(12, |_| 0.35, 2.5, &k, w, h);
         let parts = sample_parts(&store, 2, Some(400), 7).unwrap();
-        let (mut offsets, mut rotations) = (Vec::new(), Vec::new());
-        for (i, pose) in poses.iter().enumerate() {
-            let mine: Vec<[i32; 3]> = parts.iter().filter(|p| p[0] == i as i32).copied().collect();
-            let img = store.image(i);
-            let (o, r) = synth::targets(&mine, img.data, w, pose.0, pose.1, &k);
-            offsets.extend(o);
-            rotations.extend(r);
-        }
+        let (offsets, rotations) = synth::view_targets(&parts, &store, &poses, &k);
         let params = ForestParams {
             n_trees: 4,
             max_depth: 14,

@@ -5,6 +5,7 @@
 //! origin = the SSC; camera OpenCV; `X_cam = R X_obj + t`; depth uint16 mm, 0 = missing.
 
 use super::predict::Intrinsics;
+use crate::DepthStore;
 use super::{matrix_to_quat, quat_to_matrix};
 
 /// An axis-aligned box in the object frame: centre and half extents (metres).
@@ -128,6 +129,52 @@ pub fn targets(
         let x = k.back_project(f64::from(p[1]), f64::from(p[2]), z);
         offsets.extend((0..3).map(|a| (t[a] - x[a]) as f32));
         rotations.extend(q.iter().map(|v| *v as f32));
+    }
+    (offsets, rotations)
+}
+
+/// A view's pose `(R row-major, t)`, as [`look_at`] gives it.
+pub type Pose = ([[f64; 3]; 3], [f64; 3]);
+
+/// `n` views of the [`chair`] around it (azimuth `i * 2π / n`, elevation `elevation(i)` radians,
+/// at `distance` metres), rendered at `width x height` through `k`: the images and their poses
+/// (the training fixture of the tests and benchmarks).
+pub fn chair_views(
+    n: usize,
+    elevation: impl Fn(usize) -> f64,
+    distance: f64,
+    k: &Intrinsics,
+    width: usize,
+    height: usize,
+) -> (DepthStore, Vec<Pose>) {
+    let chair = chair();
+    let mut store = DepthStore::new();
+    let mut poses = Vec::new();
+    for i in 0..n {
+        let az = i as f64 * std::f64::consts::TAU / n as f64;
+        let pose = look_at(az, elevation(i), distance);
+        store
+            .push(width, height, &render(&chair, pose.0, pose.1, k, width, height))
+            .expect("a rendered view is a valid image");
+        poses.push(pose);
+    }
+    (store, poses)
+}
+
+/// [`targets`] of `parts` (grouped by image in order, as [`crate::sample_parts`] gives them)
+/// over the views of `store` at `poses`: offsets (P, 3) and rotations (P, 4), flat.
+pub fn view_targets(
+    parts: &[[i32; 3]],
+    store: &DepthStore,
+    poses: &[Pose],
+    k: &Intrinsics,
+) -> (Vec<f32>, Vec<f32>) {
+    let (mut offsets, mut rotations) = (Vec::new(), Vec::new());
+    for (i, (r, t)) in poses.iter().enumerate() {
+        let mine: Vec<[i32; 3]> = parts.iter().filter(|p| p[0] == i as i32).copied().collect();
+        let (o, q) = targets(&mine, store.image(i).data, store.dims(i).0, *r, *t, k);
+        offsets.extend(o);
+        rotations.extend(q);
     }
     (offsets, rotations)
 }

@@ -286,18 +286,12 @@ fn deterministic_across_runs_and_threads_stable_under_input_order() {
     let a = find_modes(&votes, &p).unwrap();
     let b = find_modes(&votes, &p).unwrap();
     assert_eq!(a, b);
-    let one = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .unwrap();
-    let c = one.install(|| find_modes(&votes, &p).unwrap());
-    assert_eq!(a, c);
-    let three = rayon::ThreadPoolBuilder::new()
-        .num_threads(3)
-        .build()
-        .unwrap();
-    let d = three.install(|| find_modes(&votes, &p).unwrap());
-    assert_eq!(a, d);
+    let on_threads = |n| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        pool.install(|| find_modes(&votes, &p).unwrap())
+    };
+    assert_eq!(a, on_threads(1));
+    assert_eq!(a, on_threads(3));
     // Reversed input: the same modes up to float summation order and which votes the
     // even-stride subsamples pick (well under a millimetre and a tenth of a degree).
     let rev: Vec<PoseVote> = votes.iter().rev().copied().collect();
@@ -306,6 +300,13 @@ fn deterministic_across_runs_and_threads_stable_under_input_order() {
         assert!(tdist(x.translation, y.translation) < 1e-3, "{x:?} {y:?}");
         assert!(quat_angle(x.quaternion, y.quaternion) < 0.1f64.to_radians());
     }
+}
+
+/// The modes of `votes` with the default parameters changed by `set`.
+fn modes_with(votes: &[PoseVote], set: impl FnOnce(&mut VoteParams)) -> Vec<Hypothesis> {
+    let mut p = VoteParams::default();
+    set(&mut p);
+    find_modes(votes, &p).unwrap()
 }
 
 #[test]
@@ -336,11 +337,7 @@ fn nms_and_max_hypotheses() {
             1.0,
         ));
     }
-    let p = VoteParams {
-        max_hypotheses: 3,
-        ..Default::default()
-    };
-    let hyps = find_modes(&votes, &p).unwrap();
+    let hyps = modes_with(&votes, |p| p.max_hypotheses = 3);
     assert_eq!(hyps.len(), 3);
     // The three biggest clusters (i = 7, 6, 5), in that order.
     for (k, hy) in hyps.iter().enumerate() {
@@ -350,12 +347,10 @@ fn nms_and_max_hypotheses() {
         );
     }
     // With an NMS radius over 0.5 m neighbours suppress each other.
-    let p = VoteParams {
-        max_hypotheses: 8,
-        nms_radius: 0.6,
-        ..Default::default()
-    };
-    let hyps = find_modes(&votes, &p).unwrap();
+    let hyps = modes_with(&votes, |p| {
+        p.max_hypotheses = 8;
+        p.nms_radius = 0.6;
+    });
     for (i, a) in hyps.iter().enumerate() {
         for b in &hyps[i + 1..] {
             assert!(tdist(a.translation, b.translation) >= 0.6);
@@ -379,11 +374,7 @@ fn several_rotations_per_position() {
         0.05,
         1.0,
     ));
-    let p = VoteParams {
-        rotations_per_position: 2,
-        ..Default::default()
-    };
-    let hyps = find_modes(&votes, &p).unwrap();
+    let hyps = modes_with(&votes, |p| p.rotations_per_position = 2);
     assert!(quat_angle(hyps[0].quaternion, q1) < 2f64.to_radians());
     assert!(quat_angle(hyps[1].quaternion, q2) < 2f64.to_radians());
     assert_eq!(hyps[0].translation, hyps[1].translation);
@@ -446,43 +437,18 @@ fn errors_name_the_vote_or_parameter() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("votes[3]") && e.contains("weight"), "{e}");
-    for (p, name) in [
-        (
-            VoteParams {
-                position_bandwidth: 0.0,
-                ..Default::default()
-            },
-            "position_bandwidth",
-        ),
-        (
-            VoteParams {
-                rotation_bandwidth: 4.0,
-                ..Default::default()
-            },
-            "rotation_bandwidth",
-        ),
-        (
-            VoteParams {
-                nms_radius: f32::NAN,
-                ..Default::default()
-            },
-            "nms_radius",
-        ),
-        (
-            VoteParams {
-                max_hypotheses: 0,
-                ..Default::default()
-            },
-            "max_hypotheses",
-        ),
-        (
-            VoteParams {
-                max_seeds: 0,
-                ..Default::default()
-            },
-            "max_seeds",
-        ),
-    ] {
+    // Each parameter set out of range in turn.
+    type Setter = fn(&mut VoteParams);
+    let spoil: [(&str, Setter); 5] = [
+        ("position_bandwidth", |p| p.position_bandwidth = 0.0),
+        ("rotation_bandwidth", |p| p.rotation_bandwidth = 4.0),
+        ("nms_radius", |p| p.nms_radius = f32::NAN),
+        ("max_hypotheses", |p| p.max_hypotheses = 0),
+        ("max_seeds", |p| p.max_seeds = 0),
+    ];
+    for (name, set) in spoil {
+        let mut p = VoteParams::default();
+        set(&mut p);
         let e = find_modes(&[good], &p).unwrap_err();
         assert!(matches!(e, IsaError::InvalidParameter(_)));
         assert!(e.to_string().contains(name), "{e}");

@@ -1,0 +1,41 @@
+//! The checks that the parameter sets' `validate` share; each error names the parameter.
+
+use crate::error::{IsaError, Result};
+
+/// The error "`name` `why`".
+pub(super) fn bad<T>(name: &str, why: String) -> Result<T> {
+    Err(IsaError::InvalidParameter(format!("{name} {why}")))
+}
+
+pub(super) fn positive(name: &str, x: f64) -> Result<()> {
+    if x.is_finite() && x > 0.0 {
+        Ok(())
+    } else {
+        bad(name, format!("must be finite and > 0, got {x}"))
+    }
+}
+
+pub(super) fn non_negative(name: &str, x: f64) -> Result<()> {
+    if x.is_finite() && x >= 0.0 {
+        Ok(())
+    } else {
+        bad(name, format!("must be finite and >= 0, got {x}"))
+    }
+}
+
+/// Each `(name, count)` is at least 1.
+pub(super) fn at_least_one(counts: &[(&str, usize)]) -> Result<()> {
+    match counts.iter().find(|(_, v)| *v == 0) {
+        Some((name, _)) => bad(name, "must be >= 1, got 0".into()),
+        None => Ok(()),
+    }
+}
+
+/// `v` is in `lo..=hi`.
+pub(super) fn in_range(name: &str, v: usize, lo: usize, hi: usize) -> Result<()> {
+    if (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        bad(name, format!("must be in {lo}..={hi}, got {v}"))
+    }
+}
