@@ -557,8 +557,9 @@ mod tests {
         let got = image_votes(&weighted, &img, &K, &p).unwrap();
         assert_eq!(got.votes.len(), base.votes.len());
         // The leaf of each vote's part, by the other traversal.
-        let (ds, dparts) = parts_of(&img, &p).unwrap();
-        let leaves = plain.apply(&ds, &dparts).unwrap();
+        let ip = ImageParts::new(&img, p.stride).unwrap();
+        let (ds, dparts) = (&ip.store, ip.within(&p).unwrap());
+        let leaves = plain.apply(ds, &dparts).unwrap();
         let index: std::collections::HashMap<(u32, u32), usize> =
             dparts.iter().enumerate().map(|(i, q)| ((q[1] as u32, q[2] as u32), i)).collect();
         let n_t = plain.n_trees();
