@@ -13,14 +13,14 @@ use serde_json::Value;
 use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource};
 use super::nms::{nms_across, UprightBox};
 use super::planes::{find_planes, Planes};
-use super::refine::{refine_pose, upright_points};
+use super::refine::{refine_pose, upright_points, ObservedPoints};
 use super::shapes::{ShapeLibrary, SizeRange};
 use super::verify::{verify_pose, Evidence, Verification};
 use super::{rot_z, rows, yaw_of, Camera, Frame};
 use crate::error::{IsaError, Result};
 use crate::forest::Forest;
 use crate::params::{DetectParams, Valid, VerifyParams};
-use crate::vote::{depth_m_to_mm, predict, DepthImage, Hypothesis};
+use crate::vote::{depth_m_to_mm, predict_parts, DepthImage, Hypothesis, ImageParts};
 
 /// Margin (a fraction) by which a fitted size may leave the category's real-world range.
 const SIZE_MARGIN: f64 = 0.15;
@@ -402,12 +402,14 @@ pub fn detect(
             .map_or_else(|| depth.to_vec(), |pl| pl.clean(depth)),
     );
     let img = DepthImage::new(&clean_mm, camera.width, camera.height)?;
+    // One part sampling for every forest (each keeps its own depth limits).
+    let parts = ImageParts::new(&img, p.stride)?;
     let per_model: Vec<Vec<Hypothesis>> = models
         .par_iter()
         .zip(&vote_params)
         .map(|(m, vp)| match m.hypotheses {
             Some(h) => Ok(h.to_vec()),
-            None => predict(m.forest, &img, &camera.k, vp),
+            None => predict_parts(m.forest, &parts, &camera.k, vp),
         })
         .collect::<Result<_>>()?;
     lap("votes", &mut secs);
@@ -431,7 +433,7 @@ pub fn detect(
     let obs_up = p
         .refine
         .as_ref()
-        .map(|_| upright_points(&frame, &rg, 2, floor, 0.02));
+        .map(|_| ObservedPoints::new(upright_points(&frame, &rg, 2, floor, 0.02)));
     // Verification and size per category (candidates in parallel), then refinement.
     let mut per_cat: Vec<Vec<Cand>> = models
         .par_iter()

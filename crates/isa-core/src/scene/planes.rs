@@ -7,6 +7,7 @@ use nalgebra::{Matrix2, Vector2, Vector3};
 use rand::seq::index::sample;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
 use super::{median, percentile, Frame};
 use crate::params::PlaneParams;
@@ -246,7 +247,7 @@ fn check_wall(
     let mut result = None;
     for (sel, min_points) in [(check, 1usize), (&full[..], 3usize)] {
         let on_idx: Vec<usize> = sel
-            .iter()
+            .par_iter()
             .copied()
             .filter(|&i| dist(&pts[i], &n, off) < tol[i])
             .collect();
@@ -292,23 +293,28 @@ fn find_wall(
     let idx = subsample(rng, n, p.samples);
     let ps: Vec<Vector3<f64>> = idx.iter().map(|&i| pts[i]).collect();
     let ts: Vec<f64> = idx.iter().map(|&i| tol[i]).collect();
-    let mut hyps: Vec<(usize, Vector2<f64>, f64)> = Vec::new();
-    for _ in 0..p.ransac_iterations {
-        let (i, j) = (rng.random_range(0..ps.len()), rng.random_range(0..ps.len()));
-        let d = ps[j].xy() - ps[i].xy();
-        let len = d.norm();
-        if len <= 0.2 {
-            continue; // two close points fix a direction badly
-        }
-        let nrm = Vector2::new(-d.y, d.x) / len;
-        let off = -nrm.dot(&ps[i].xy());
-        let score = ps
-            .iter()
-            .zip(&ts)
-            .filter(|(q, t)| (q.x * nrm.x + q.y * nrm.y + off).abs() < **t)
-            .count();
-        hyps.push((score, nrm, off));
-    }
+    // The pairs drawn first (the generator's sequence), then scored in parallel.
+    let pairs: Vec<(usize, usize)> = (0..p.ransac_iterations)
+        .map(|_| (rng.random_range(0..ps.len()), rng.random_range(0..ps.len())))
+        .collect();
+    let hyps: Vec<(usize, Vector2<f64>, f64)> = pairs
+        .par_iter()
+        .filter_map(|&(i, j)| {
+            let d = ps[j].xy() - ps[i].xy();
+            let len = d.norm();
+            if len <= 0.2 {
+                return None; // two close points fix a direction badly
+            }
+            let nrm = Vector2::new(-d.y, d.x) / len;
+            let off = -nrm.dot(&ps[i].xy());
+            let score = ps
+                .iter()
+                .zip(&ts)
+                .filter(|(q, t)| (q.x * nrm.x + q.y * nrm.y + off).abs() < **t)
+                .count();
+            Some((score, nrm, off))
+        })
+        .collect();
     let mut check = subsample(rng, n, p.check_samples);
     check.sort_unstable();
     let mut order: Vec<usize> = (0..hyps.len()).collect();
@@ -343,9 +349,9 @@ pub fn find_planes(
     walls: bool,
 ) -> Planes {
     let (cam, pix) = frame.points();
-    let up: Vec<Vector3<f64>> = cam.iter().map(|q| r_gravity * q).collect();
+    let up: Vec<Vector3<f64>> = cam.par_iter().map(|q| r_gravity * q).collect();
     let [base, k] = p.tolerance;
-    let tol: Vec<f64> = cam.iter().map(|q| base.max(k * q.z * q.z)).collect();
+    let tol: Vec<f64> = cam.par_iter().map(|q| base.max(k * q.z * q.z)).collect();
     let mut rng = ChaCha8Rng::seed_from_u64(p.seed);
     // -1 none, -2 under the floor, else the plane's index
     let mut labels = vec![-1i64; up.len()];
@@ -370,9 +376,12 @@ pub fn find_planes(
         });
     }
     for _ in 0..if walls { p.max_walls } else { 0 } {
-        let free: Vec<usize> = (0..up.len()).filter(|&i| labels[i] == -1).collect();
-        let fp: Vec<Vector3<f64>> = free.iter().map(|&i| up[i]).collect();
-        let ft: Vec<f64> = free.iter().map(|&i| tol[i]).collect();
+        let free: Vec<usize> = (0..up.len())
+            .into_par_iter()
+            .filter(|&i| labels[i] == -1)
+            .collect();
+        let fp: Vec<Vector3<f64>> = free.par_iter().map(|&i| up[i]).collect();
+        let ft: Vec<f64> = free.par_iter().map(|&i| tol[i]).collect();
         let Some((n, off, mask)) = find_wall(&fp, &ft, p, &mut rng, up.len()) else {
             break;
         };

@@ -49,87 +49,223 @@ pub fn upright_points(
     out
 }
 
-/// Nearest-neighbour lookups within a fixed radius: the points bucketed on a dense grid of
-/// cells of that side over their bounds (compressed rows: a start per cell into one index list).
-struct RadiusGrid<'a> {
-    points: &'a [Vector3<f64>],
-    cell: f64,
-    lo: Vector3<f64>,
-    dims: [i64; 3],
+/// Observed upright points with an index of vertical columns, so that each hypothesis gathers
+/// the points in its box from the columns under the box instead of from the whole frame.
+pub struct ObservedPoints {
+    points: Vec<Vector3<f64>>,
+    lo: [f64; 2],
+    dims: [i64; 2],
+    /// Start of each column in `order` (compressed rows); indices ascending within a column.
     start: Vec<u32>,
     order: Vec<u32>,
 }
 
-impl<'a> RadiusGrid<'a> {
-    fn new(points: &'a [Vector3<f64>], radius: f64) -> Self {
+/// Side (metres) of [`ObservedPoints`]' columns.
+const OBSERVED_COLUMN: f64 = 0.25;
+
+impl ObservedPoints {
+    pub fn new(points: Vec<Vector3<f64>>) -> Self {
         let lo = points
             .iter()
-            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(p));
+            .fold([f64::INFINITY; 2], |m, p| [m[0].min(p.x), m[1].min(p.y)]);
         let hi = points
             .iter()
-            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(p));
-        let dims = [0, 1, 2].map(|k| ((hi[k] - lo[k]) / radius).floor() as i64 + 1);
-        let n_cells = (dims[0] * dims[1] * dims[2]) as usize;
-        let mut g = RadiusGrid {
+            .fold([f64::NEG_INFINITY; 2], |m, p| [m[0].max(p.x), m[1].max(p.y)]);
+        let dims = if points.is_empty() {
+            [0, 0]
+        } else {
+            [0, 1].map(|k| ((hi[k] - lo[k]) / OBSERVED_COLUMN).floor() as i64 + 1)
+        };
+        let key = |p: &Vector3<f64>| {
+            let k = [0, 1].map(|a| floor_i64((p[a] - lo[a]) / OBSERVED_COLUMN));
+            (k[0] * dims[1] + k[1]) as usize
+        };
+        let n_cols = (dims[0] * dims[1]) as usize;
+        let mut start = vec![0u32; n_cols + 1];
+        let keys: Vec<usize> = points.iter().map(key).collect();
+        for &k in &keys {
+            start[k + 1] += 1;
+        }
+        for c in 0..n_cols {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let mut order = vec![0u32; points.len()];
+        for (i, &k) in keys.iter().enumerate() {
+            order[fill[k] as usize] = i as u32;
+            fill[k] += 1;
+        }
+        ObservedPoints {
             points,
-            cell: radius,
             lo,
             dims,
-            start: vec![0; n_cells + 1],
-            order: vec![0; points.len()],
+            start,
+            order,
+        }
+    }
+
+    /// The points within `half` of `centre` along the axes of the box turned by the yaw of
+    /// `(sin, cos)`, in their order: only the columns under the box's footprint are read (its
+    /// bounding rectangle, widened for rounding), the same points as testing every one.
+    fn in_box(&self, centre: &Vector3<f64>, (s, c): (f64, f64), half: &Vector3<f64>) -> Vec<Vector3<f64>> {
+        let inside = |q: &Vector3<f64>| {
+            let d = *q - centre;
+            (d.x * c + d.y * s).abs() <= half.x
+                && (d.y * c - d.x * s).abs() <= half.y
+                && d.z.abs() <= half.z
+        };
+        let ext = [
+            c.abs() * half.x + s.abs() * half.y,
+            s.abs() * half.x + c.abs() * half.y,
+        ]
+        .map(|e| e * (1.0 + 1e-9) + 1e-6);
+        let range = |a: usize| {
+            let k0 = floor_i64((centre[a] - ext[a] - self.lo[a]) / OBSERVED_COLUMN).max(0);
+            let k1 = floor_i64((centre[a] + ext[a] - self.lo[a]) / OBSERVED_COLUMN).min(self.dims[a] - 1);
+            (k0, k1)
+        };
+        let ((x0, x1), (y0, y1)) = (range(0), range(1));
+        let mut idx: Vec<u32> = Vec::new();
+        for kx in x0..=x1 {
+            for ky in y0..=y1 {
+                let col = (kx * self.dims[1] + ky) as usize;
+                let ids = &self.order[self.start[col] as usize..self.start[col + 1] as usize];
+                idx.extend(ids.iter().filter(|&&i| inside(&self.points[i as usize])));
+            }
+        }
+        idx.sort_unstable();
+        idx.into_iter().map(|i| self.points[i as usize]).collect()
+    }
+}
+
+/// Nearest-neighbour lookups within a fixed radius: the points bucketed in vertical columns
+/// of a dense 2D grid (side `radius / COLUMN_SPLIT`) over their bounds, each column's points
+/// sorted by height, so a query tests only the columns whose footprint meets its ball and, in
+/// each, only the points within the ball's height range (found by bisection).
+struct RadiusGrid {
+    radius: f64,
+    cell: f64,
+    lo: [f64; 2],
+    dims: [i64; 2],
+    /// Start of each column in the sorted arrays (compressed rows).
+    start: Vec<u32>,
+    z: Vec<f64>,
+    points: Vec<Vector3<f64>>,
+    ids: Vec<u32>,
+}
+
+/// Columns per radius: finer columns test fewer points (a ball instead of a 3x3 block) at the
+/// cost of more column look-ups.
+const COLUMN_SPLIT: i64 = 1;
+
+impl RadiusGrid {
+    fn new(points: &[Vector3<f64>], radius: f64) -> Self {
+        let cell = radius / COLUMN_SPLIT as f64;
+        let lo = points
+            .iter()
+            .fold([f64::INFINITY; 2], |m, p| [m[0].min(p.x), m[1].min(p.y)]);
+        let hi = points.iter().fold([f64::NEG_INFINITY; 2], |m, p| {
+            [m[0].max(p.x), m[1].max(p.y)]
+        });
+        let dims = [0, 1].map(|k| ((hi[k] - lo[k]) / cell).floor() as i64 + 1);
+        let n_cols = if points.is_empty() {
+            0
+        } else {
+            (dims[0] * dims[1]) as usize
+        };
+        let mut g = RadiusGrid {
+            radius,
+            cell,
+            lo,
+            dims,
+            start: vec![0; n_cols + 1],
+            z: Vec::with_capacity(points.len()),
+            points: Vec::with_capacity(points.len()),
+            ids: Vec::new(),
         };
         let keys: Vec<usize> = points
             .iter()
-            .map(|p| g.flat(g.key(p)).expect("inside its own bounds"))
+            .map(|p| {
+                let k = g.key(p);
+                (k[0] * g.dims[1] + k[1]) as usize
+            })
             .collect();
         for &k in &keys {
             g.start[k + 1] += 1;
         }
-        for c in 0..n_cells {
+        for c in 0..n_cols {
             g.start[c + 1] += g.start[c];
         }
         let mut fill = g.start.clone();
+        let mut by_col = vec![(0.0f64, 0u32); points.len()];
         for (i, &k) in keys.iter().enumerate() {
-            g.order[fill[k] as usize] = i as u32;
+            by_col[fill[k] as usize] = (points[i].z, i as u32);
             fill[k] += 1;
         }
+        for c in 0..n_cols {
+            let col = &mut by_col[g.start[c] as usize..g.start[c + 1] as usize];
+            if col.len() > 1 {
+                col.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            }
+        }
+        for &(z, i) in &by_col {
+            g.z.push(z);
+            g.points.push(points[i as usize]);
+        }
+        g.ids = by_col.into_iter().map(|(_, i)| i).collect();
         g
     }
 
-    fn key(&self, p: &Vector3<f64>) -> [i64; 3] {
-        [0, 1, 2].map(|k| floor_i64((p[k] - self.lo[k]) / self.cell))
+    fn key(&self, p: &Vector3<f64>) -> [i64; 2] {
+        [0, 1].map(|k| floor_i64((p[k] - self.lo[k]) / self.cell))
     }
 
-    fn flat(&self, k: [i64; 3]) -> Option<usize> {
-        let inside = (0..3).all(|a| k[a] >= 0 && k[a] < self.dims[a]);
-        inside.then(|| ((k[0] * self.dims[1] + k[1]) * self.dims[2] + k[2]) as usize)
-    }
-
-    /// The nearest point strictly within the radius: `(index, distance)`; ties to the lower index.
+    /// The nearest point strictly within the radius: `(index, distance)`; ties to the lower
+    /// index. The query's own column first; a column or height range farther than the best
+    /// distance so far (or the radius) is skipped, with a margin for rounding, so the answer is
+    /// that of testing every point.
     fn nearest(&self, q: &Vector3<f64>) -> Option<(usize, f64)> {
         if self.points.is_empty() {
             return None;
         }
+        let r2 = self.radius * self.radius;
         let k = self.key(q);
+        let gap = |a: usize, c: i64| {
+            let base = self.lo[a] + c as f64 * self.cell;
+            (base - q[a]).max(q[a] - (base + self.cell)).max(0.0)
+        };
         let mut best: Option<(usize, f64)> = None;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(c) = self.flat([k[0] + dx, k[1] + dy, k[2] + dz]) else {
-                        continue;
-                    };
-                    for &i in &self.order[self.start[c] as usize..self.start[c + 1] as usize] {
-                        let i = i as usize;
-                        let d2 = (self.points[i] - q).norm_squared();
-                        if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
-                            best = Some((i, d2));
-                        }
-                    }
+        let reach = COLUMN_SPLIT;
+        let own = std::iter::once((0, 0));
+        let around = (-reach..=reach)
+            .flat_map(|dx| (-reach..=reach).map(move |dy| (dx, dy)))
+            .filter(|&d| d != (0, 0));
+        for (dx, dy) in own.chain(around) {
+            let (cx, cy) = (k[0] + dx, k[1] + dy);
+            if cx < 0 || cy < 0 || cx >= self.dims[0] || cy >= self.dims[1] {
+                continue;
+            }
+            let (gx, gy) = (gap(0, cx), gap(1, cy));
+            let box2 = gx * gx + gy * gy;
+            let bound = best.map_or(r2, |b| b.1.min(r2));
+            if box2 - bound > 1e-9 * box2 + 1e-12 {
+                continue;
+            }
+            let c = (cx * self.dims[1] + cy) as usize;
+            let (s, e) = (self.start[c] as usize, self.start[c + 1] as usize);
+            let zr = (bound - box2).max(0.0).sqrt() * (1.0 + 1e-9) + 1e-6;
+            let col = &self.z[s..e];
+            let a = s + col.partition_point(|&z| z < q.z - zr);
+            let b = s + col.partition_point(|&z| z <= q.z + zr);
+            for j in a..b {
+                let d2 = (self.points[j] - q).norm_squared();
+                let i = self.ids[j] as usize;
+                if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
+                    best = Some((i, d2));
                 }
             }
         }
-        best.filter(|b| b.1 < self.cell * self.cell)
-            .map(|(i, d2)| (i, d2.sqrt()))
+        best.filter(|b| b.1 < r2).map(|(i, d2)| (i, d2.sqrt()))
     }
 }
 
@@ -137,7 +273,7 @@ impl<'a> RadiusGrid<'a> {
 /// observed upright points `obs_up` ([`upright_points`], the floor left out).
 #[allow(clippy::too_many_arguments)]
 pub fn refine_pose(
-    obs_up: &[Vector3<f64>],
+    obs_up: &ObservedPoints,
     cam: &Camera,
     r: &Matrix3<f64>,
     t: &Vector3<f64>,
@@ -156,16 +292,7 @@ pub fn refine_pose(
     let yaw0 = yaw_of(&a);
     let c_up = a * centre_obj + b;
     let (s, c) = yaw0.sin_cos();
-    let near: Vec<Vector3<f64>> = obs_up
-        .iter()
-        .filter(|q| {
-            let d = *q - c_up;
-            (d.x * c + d.y * s).abs() <= half.x
-                && (d.y * c - d.x * s).abs() <= half.y
-                && d.z.abs() <= half.z
-        })
-        .copied()
-        .collect();
+    let near: Vec<Vector3<f64>> = obs_up.in_box(&c_up, (s, c), &half);
     let obs: Vec<Vector3<f64>> = if near.len() > p.max_points {
         let m = p.max_points;
         (0..m)
@@ -291,13 +418,84 @@ mod tests {
     use super::super::verify::tests::box_scene;
     use super::*;
 
+    /// The column grid answers as testing every point: nearest within the radius, ties to the
+    /// lower index (duplicated points), queries inside, on and outside the points' bounds.
+    #[test]
+    fn nearest_is_the_brute_force_answer() {
+        let mut state = 7u64;
+        let mut rnd = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // A surface-like cloud (a box's faces, coarse coordinates so distances tie) and copies.
+        let mut pts: Vec<Vector3<f64>> = (0..1500)
+            .map(|_| {
+                let mut p = Vector3::new(rnd() * 2.0, rnd() * 0.8, rnd());
+                p[(rnd() * 3.0) as usize] = if rnd() < 0.5 { 0.0 } else { 1.0 };
+                p.map(|x| (x * 64.0).round() / 64.0)
+            })
+            .collect();
+        pts.extend(pts[..200].to_vec());
+        for radius in [0.15, 0.07, 0.03, 1.0 / 64.0] {
+            let grid = RadiusGrid::new(&pts, radius);
+            for _ in 0..2000 {
+                let q = Vector3::new(rnd() * 2.6 - 0.3, rnd() * 1.4 - 0.3, rnd() * 1.6 - 0.3).map(
+                    |x| {
+                        if rnd() < 0.3 {
+                            (x * 64.0).round() / 64.0
+                        } else {
+                            x
+                        }
+                    },
+                );
+                let mut want: Option<(usize, f64)> = None;
+                for (i, p) in pts.iter().enumerate() {
+                    let d2 = (p - q).norm_squared();
+                    if d2 < radius * radius && want.is_none_or(|b| d2 < b.1) {
+                        want = Some((i, d2));
+                    }
+                }
+                assert_eq!(
+                    grid.nearest(&q),
+                    want.map(|(i, d2)| (i, d2.sqrt())),
+                    "{q:?} {radius}"
+                );
+            }
+        }
+        assert_eq!(RadiusGrid::new(&[], 0.1).nearest(&Vector3::zeros()), None);
+        // The column index gathers the points of a turned box as testing every point does.
+        let obs: Vec<Vector3<f64>> = (0..20000)
+            .map(|_| Vector3::new(rnd() * 8.0 - 4.0, rnd() * 6.0, rnd() * 2.5 - 1.0))
+            .collect();
+        let index = ObservedPoints::new(obs.clone());
+        for _ in 0..300 {
+            let centre = Vector3::new(rnd() * 10.0 - 5.0, rnd() * 8.0 - 1.0, rnd() * 2.0 - 0.5);
+            let (s, c) = (rnd() * 7.0).sin_cos();
+            let half = Vector3::new(rnd() * 1.5, rnd() * 1.5, rnd() * 1.5);
+            let want: Vec<Vector3<f64>> = obs
+                .iter()
+                .filter(|q| {
+                    let d = *q - centre;
+                    (d.x * c + d.y * s).abs() <= half.x
+                        && (d.y * c - d.x * s).abs() <= half.y
+                        && d.z.abs() <= half.z
+                })
+                .copied()
+                .collect();
+            assert_eq!(index.in_box(&centre, (s, c), &half), want);
+        }
+        assert!(ObservedPoints::new(vec![]).in_box(&Vector3::zeros(), (0.0, 1.0), &Vector3::repeat(1.0)).is_empty());
+    }
+
     #[test]
     fn a_known_small_offset_is_recovered() {
         let size = [0.5, 1.0, 1.5];
         let lib = box_library(size, 24);
         let (depth, cam, r, t, rg) = box_scene(size, 0.4);
         let frame = Frame::new(&depth, cam).unwrap();
-        let obs = upright_points(&frame, &rg, 2, Some(-1.2), 0.02);
+        let obs = ObservedPoints::new(upright_points(&frame, &rg, 2, Some(-1.2), 0.02));
         let pts: Vec<Vector3<f64>> = lib
             .points_of(0)
             .iter()

@@ -56,7 +56,10 @@ pub mod synth;
 mod tests;
 
 pub use crate::params::{PredictParams, VoteParams};
-pub use predict::{depth_m_to_mm, image_votes, predict, DepthImage, ImageVotes, Intrinsics};
+pub use predict::{
+    depth_m_to_mm, image_votes, predict, predict_parts, DepthImage, ImageParts, ImageVotes,
+    Intrinsics,
+};
 
 use crate::error::{IsaError, Result};
 use crate::rotation::normalise as normalise4;

@@ -156,21 +156,63 @@ pub struct ImageVotes {
 
 const CHUNK: usize = 256;
 
-fn parts_of(depth: &DepthImage<'_>, params: &PredictParams) -> Result<(DepthStore, Vec<Part>)> {
-    let mut store = DepthStore::new();
-    store.push(depth.width, depth.height, depth.data)?;
-    let mut parts = sample_parts(&store, params.stride, None, 0)?;
-    let lo = (params.min_depth * 1000.0).ceil().max(1.0) as u32;
-    let hi = params
-        .max_depth
-        .map_or(u32::MAX, |m| (m * 1000.0).floor() as u32);
-    if lo > 1 || hi < u16::MAX as u32 {
-        parts.retain(|p| {
-            let d = u32::from(store.center_depth(p));
-            d >= lo && d <= hi
-        });
+/// The parts of one depth image on a stride, sampled once for every forest that votes on it
+/// (scene detection runs each category's forest over the same parts).
+pub struct ImageParts {
+    store: DepthStore,
+    parts: Vec<Part>,
+    stride: usize,
+}
+
+impl ImageParts {
+    /// Every valid pixel of `depth` on `stride`.
+    pub fn new(depth: &DepthImage<'_>, stride: usize) -> Result<Self> {
+        let mut store = DepthStore::new();
+        store.push(depth.width, depth.height, depth.data)?;
+        let parts = sample_parts(&store, stride, None, 0)?;
+        Ok(ImageParts {
+            store,
+            parts,
+            stride,
+        })
     }
-    Ok((store, parts))
+
+    /// The parts within `params`' depth limits (all of them without limits).
+    fn within(&self, params: &PredictParams) -> Result<std::borrow::Cow<'_, [Part]>> {
+        if params.stride != self.stride {
+            return Err(IsaError::InvalidParameter(format!(
+                "stride {} for parts sampled on stride {}",
+                params.stride, self.stride
+            )));
+        }
+        let lo = (params.min_depth * 1000.0).ceil().max(1.0) as u32;
+        let hi = params
+            .max_depth
+            .map_or(u32::MAX, |m| (m * 1000.0).floor() as u32);
+        if lo > 1 || hi < u16::MAX as u32 {
+            let store = &self.store;
+            Ok(self
+                .parts
+                .iter()
+                .filter(|p| {
+                    let d = u32::from(store.center_depth(p));
+                    d >= lo && d <= hi
+                })
+                .copied()
+                .collect::<Vec<_>>()
+                .into())
+        } else {
+            Ok(self.parts[..].into())
+        }
+    }
+
+    fn width(&self) -> usize {
+        self.store.image(0).width as usize
+    }
+
+    fn height(&self) -> usize {
+        self.store.image(0).height as usize
+    }
 }
 
 /// Parts traversed together per tree (several vote chunks of [`CHUNK`] parts: a long run keeps
@@ -343,8 +385,9 @@ pub fn image_votes(
     params: &Valid<PredictParams>,
 ) -> Result<ImageVotes> {
     k.validate_for(depth.width, depth.height)?;
-    let (store, parts) = parts_of(depth, params)?;
-    Ok(collect_votes(forest, &store, &parts, k, params, true))
+    let ip = ImageParts::new(depth, params.stride)?;
+    let parts = ip.within(params)?;
+    Ok(collect_votes(forest, &ip.store, &parts, k, params, true))
 }
 
 /// The 6D pose hypotheses of the objects in `depth`, best first (see the module docs).
@@ -358,8 +401,20 @@ pub fn predict(
     params: &Valid<PredictParams>,
 ) -> Result<Vec<Hypothesis>> {
     k.validate_for(depth.width, depth.height)?;
-    let (store, parts) = parts_of(depth, params)?;
-    let votes = collect_votes(forest, &store, &parts, k, params, false);
+    predict_parts(forest, &ImageParts::new(depth, params.stride)?, k, params)
+}
+
+/// [`predict`] on parts sampled beforehand (the same hypotheses); `params.stride` must be
+/// the parts' stride.
+pub fn predict_parts(
+    forest: &Forest,
+    parts: &ImageParts,
+    k: &Intrinsics,
+    params: &Valid<PredictParams>,
+) -> Result<Vec<Hypothesis>> {
+    k.validate_for(parts.width(), parts.height())?;
+    let within = parts.within(params)?;
+    let votes = collect_votes(forest, &parts.store, &within, k, params, false);
     // Leaf votes are finite (model files are validated) and so are back-projected pixels.
     Ok(find_modes_valid(&votes.votes, &params.vote))
 }
@@ -498,8 +553,9 @@ mod tests {
         let got = image_votes(&weighted, &img, &K, &p).unwrap();
         assert_eq!(got.votes.len(), base.votes.len());
         // The leaf of each vote's part, by the other traversal.
-        let (ds, dparts) = parts_of(&img, &p).unwrap();
-        let leaves = plain.apply(&ds, &dparts).unwrap();
+        let ip = ImageParts::new(&img, p.stride).unwrap();
+        let (ds, dparts) = (&ip.store, ip.within(&p).unwrap());
+        let leaves = plain.apply(ds, &dparts).unwrap();
         let index: std::collections::HashMap<(u32, u32), usize> =
             dparts.iter().enumerate().map(|(i, q)| ((q[1] as u32, q[2] as u32), i)).collect();
         let n_t = plain.n_trees();
