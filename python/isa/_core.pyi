@@ -91,6 +91,18 @@ class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
     """A path names a directory where isa needs a file."""
 
 @final
+class InputWarning(UserWarning):
+    """An input accepted but probably wrong: a depth range implausible for a depth sensor (a
+    wrong ``depth_scale``), an image that looks transposed against its intrinsics."""
+
+def depth_to_metres(depth: npt.ArrayLike, K: Any, depth_scale: float | None = None) -> npt.NDArray[np.float32]:
+    """A depth image (H, W) or organised point cloud (H, W, 3) as float32 metres, checked as
+    ``Forest.predict`` checks it (``depth_scale``, image size, ``InputWarning``)."""
+
+def depth_from_points(points: npt.ArrayLike, K: Any, width: int, height: int) -> npt.NDArray[np.float32]:
+    """Camera-frame points (N, 3) float64 projected to a (height, width) float32 depth image in
+    the points' unit (nearest point per pixel, 0 = missing)."""
+
 class Hypothesis:
     """A ranked 6D pose, ``X_cam = R @ X_obj + t``. Fields are attributes and also items under
     the same names (``h["R"]``, ``h.get("score")``, ``dict(h)``), as when hypotheses were dicts;
@@ -102,6 +114,9 @@ class Hypothesis:
     @property
     def t(self) -> npt.NDArray[np.float64]:
         """Translation (3,), metres: the object-frame origin in the camera frame."""
+    @property
+    def pose(self) -> npt.NDArray[np.float64]:
+        """The 4x4 pose ``[[R, t], [0, 0, 0, 1]]``: ``X_cam = pose @ [X_obj, 1]``."""
     @property
     def quaternion(self) -> npt.NDArray[np.float64]:
         """The rotation as (w, x, y, z), w >= 0."""

@@ -144,6 +144,30 @@ pub struct TrainFlags {
     pub seed: Option<u64>,
 }
 
+/// How depth images meet their camera: intrinsics from flags or a camera file, the image id,
+/// the depth unit (shared by `isa predict` and `isa detect`).
+#[derive(Args)]
+pub struct CameraArgs {
+    /// Pinhole intrinsics in pixels: FX FY CX CY.
+    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera",
+          allow_negative_numbers = true, value_parser = finite::<f64>)]
+    pub intrinsics: Option<Vec<f64>>,
+    /// Camera file: a BOP scene_camera.json (per image id: cam_K, depth_scale; the id is the
+    /// PNG's file name, e.g. 000012.png, or --image-id) or a BOP camera.json (fx, fy, cx, cy,
+    /// width, height, depth_scale; the image size is then checked).
+    #[arg(short, long, value_name = "JSON")]
+    pub camera: Option<PathBuf>,
+    /// Image id for --camera scene_camera.json when the file name is not one [default: from the
+    /// file name].
+    #[arg(long)]
+    pub image_id: Option<u64>,
+    #[arg(long, value_parser = finite::<f64>, help = dflt(
+        isa_core::params::DEPTH_SCALE_HELP,
+        "the camera file's depth_scale, else 1"
+    ))]
+    pub depth_scale: Option<f64>,
+}
+
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Format {
     /// One JSON document: per image, its hypotheses (R row-major, t in metres, quaternion w x y z,
@@ -172,36 +196,32 @@ pub struct PredictArgs {
     /// Model file written by `isa train` or Python's `Forest.save`.
     #[arg(value_name = "MODEL")]
     pub model: PathBuf,
-    /// Depth images: 16-bit single-channel PNGs in millimetres (times the camera's depth_scale
-    /// with --camera), 0 = missing.
+    /// Depth images: 16-bit single-channel PNGs in millimetres (times --depth-scale or the
+    /// camera's depth_scale), 0 = missing.
     #[arg(value_name = "PNG", conflicts_with = "scene")]
     pub depth: Vec<PathBuf>,
-    /// Pinhole intrinsics in pixels: FX FY CX CY.
-    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera",
-          allow_negative_numbers = true, value_parser = finite::<f64>)]
-    pub intrinsics: Option<Vec<f64>>,
-    /// Camera file: a BOP scene_camera.json (per image id: cam_K, depth_scale; the id is the
-    /// PNG's file name, e.g. 000012.png, or --image-id) or a BOP camera.json (fx, fy, cx, cy,
-    /// width, height, depth_scale; the image size is then checked).
-    #[arg(short, long, value_name = "JSON")]
-    pub camera: Option<PathBuf>,
-    /// A BOP scene folder: every depth/*.png with its scene_camera.json.
-    #[arg(long, value_name = "DIR")]
-    pub scene: Option<PathBuf>,
-    /// Image id for --camera scene_camera.json when the file name is not one [default: from the
-    /// file name].
-    #[arg(long)]
-    pub image_id: Option<u64>,
+    #[command(flatten)]
+    pub camera: CameraArgs,
+    /// BOP scene folders (every depth/*.png with its scene_camera.json), or a split folder
+    /// holding them (every scene): one results file with one header. Repeatable.
+    #[arg(long, value_name = "DIR", num_args = 1..)]
+    pub scene: Vec<PathBuf>,
     /// BOP scene id for --format bop [default: the --scene folder's name if a number, else 0].
     #[arg(long)]
     pub scene_id: Option<u64>,
-    /// BOP object id of the category for --format bop.
-    #[arg(long, default_value_t = 1)]
-    pub obj_id: u64,
+    /// BOP object id for --format bop [default: the model's metadata "obj_id", else the one
+    /// object of the image's category in the scene's scene_gt.json].
+    #[arg(long)]
+    pub obj_id: Option<u64>,
+    /// Method name in the BOP results file name, `METHOD_DATASET-SPLIT.csv`, written when -o is
+    /// a folder (DATASET and SPLIT from the --scene path, `.../DATASET/SPLIT/SCENE`).
+    #[arg(long, default_value = "isa")]
+    pub method: String,
     /// Output format.
     #[arg(short, long, value_enum, default_value_t = Format::Json)]
     pub format: Format,
-    /// Output file [default: standard output].
+    /// Output file [default: standard output]; with --format bop a folder gets the file
+    /// bop_toolkit expects, METHOD_DATASET-SPLIT.csv.
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
     #[command(flatten)]
@@ -312,29 +332,32 @@ pub enum DetectFormat {
 pub struct DetectArgs {
     /// Category model: PATH or CATEGORY=PATH (default category: the model's metadata). Repeat
     /// for every category.
-    #[arg(short, long = "model", value_name = "[CATEGORY=]MODEL", required = true)]
+    #[arg(
+        short,
+        long = "model",
+        value_name = "[CATEGORY=]MODEL",
+        required = true
+    )]
     pub models: Vec<String>,
-    /// Depth images: 16-bit single-channel PNGs in millimetres (times the camera's depth_scale
-    /// with --camera), 0 = missing.
+    /// Depth images: 16-bit single-channel PNGs in millimetres (times --depth-scale or the
+    /// camera's depth_scale), 0 = missing.
     #[arg(value_name = "PNG", required = true)]
     pub depth: Vec<PathBuf>,
-    /// Pinhole intrinsics in pixels: FX FY CX CY.
-    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera")]
-    pub intrinsics: Option<Vec<f64>>,
-    /// Camera file: a BOP scene_camera.json or camera.json (as for `isa predict`).
-    #[arg(short, long, value_name = "JSON")]
-    pub camera: Option<PathBuf>,
+    #[command(flatten)]
+    pub camera: CameraArgs,
     /// Gravity in camera coordinates (OpenCV: x right, y down, z forward), any length, e.g.
     /// 0,1,0 for a level camera [default: the floor's normal, else the votes' up axis].
-    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "GX,GY,GZ",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     pub gravity: Option<Vec<f64>>,
     /// Folder of shape libraries `<category>.shapes.isl` [default: `<model>.shapes.isl` beside
     /// each model].
     #[arg(long, value_name = "DIR")]
     pub shapes: Option<PathBuf>,
-    /// Image id for a scene_camera.json when the file name is not one [default: from the name].
-    #[arg(long)]
-    pub image_id: Option<u64>,
     /// BOP scene id for --format bop.
     #[arg(long, default_value_t = 0)]
     pub scene_id: u64,
