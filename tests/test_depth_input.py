@@ -10,11 +10,11 @@ import warnings
 
 import numpy as np
 import pytest
-from test_vote import K, plate, trained  # noqa: F401  (trained: the module's fixture)
 
 from isa import InputWarning, _core
 from isa.camera import Intrinsics, depth_from_points
 from isa.exceptions import InvalidInputError, InvalidParameterError
+from test_vote import K, plate, trained  # noqa: F401  (trained: the module's fixture)
 
 KBIG = K.copy()
 KBIG[0, 2], KBIG[1, 2] = 159.5, 119.5

@@ -19,6 +19,7 @@ __all__ = [
     "FOREST_DEFAULTS",
     "Forest",
     "Hypothesis",
+    "InputWarning",
     "InvalidInputError",
     "InvalidParameterError",
     "InvalidTypeError",
@@ -38,6 +39,8 @@ __all__ = [
     "__version__",
     "_testing",
     "default_predict_params",
+    "depth_from_points",
+    "depth_to_metres",
     "depth_features",
     "detect",
     "find_modes",
@@ -90,7 +93,6 @@ class IsaPermissionError(IsaIOError, PermissionError):
 class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
     """A path names a directory where isa needs a file."""
 
-@final
 class InputWarning(UserWarning):
     """An input accepted but probably wrong: a depth range implausible for a depth sensor (a
     wrong ``depth_scale``), an image that looks transposed against its intrinsics."""
@@ -103,6 +105,7 @@ def depth_from_points(points: npt.ArrayLike, K: Any, width: int, height: int) ->
     """Camera-frame points (N, 3) float64 projected to a (height, width) float32 depth image in
     the points' unit (nearest point per pixel, 0 = missing)."""
 
+@final
 class Hypothesis:
     """A ranked 6D pose, ``X_cam = R @ X_obj + t``. Fields are attributes and also items under
     the same names (``h["R"]``, ``h.get("score")``, ``dict(h)``), as when hypotheses were dicts;

@@ -12,6 +12,7 @@ import numpy as np
 
 from detect_reference.refine import refine_pose
 from detect_reference.verify import DepthEvidence, verify_pose
+from isa import _core
 from isa.camera import Intrinsics
 from isa.detection.gravity import estimate_gravity
 from isa.detection.multi import CategoryModel, DetectParams, DetectResult, SceneDetection, _models
@@ -19,7 +20,6 @@ from isa.detection.refine import upright_points
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import VerifyParams
 from isa.evaluation.boxes3d import Box3D, footprint_intersection_area, iou_3d, rot_z
-from isa import _core
 
 
 def _overlap(a: Box3D, b: Box3D) -> tuple[float, float]:

@@ -769,10 +769,21 @@ fn depth_scales_and_transposed_images_warn_or_fail() {
     expect_exit(&o, 0, &["transposed.png", "transposed"]);
 }
 
+/// One row of a BOP results file.
+struct BopRow {
+    scene_id: u64,
+    im_id: u64,
+    obj_id: u64,
+    _score: f64,
+    _r: Vec<f64>,
+    t: Vec<f64>,
+    time: f64,
+}
+
 /// bop_toolkit's `inout.load_bop_results` (bop19), as it reads a file: the header skipped on
 /// line 1 only, every other line 7 comma-separated fields (ints, a float, 9 and 3 floats split
 /// on whitespace, a float); and its check that all rows of an image share one time.
-fn load_bop_results(text: &str) -> Vec<(u64, u64, u64, f64, Vec<f64>, Vec<f64>, f64)> {
+fn load_bop_results(text: &str) -> Vec<BopRow> {
     let mut out = Vec::new();
     for (i, line) in text.split_inclusive('\n').enumerate() {
         if i == 0 && line.contains("scene_id,im_id,obj_id,score,R,t,time") {
@@ -783,20 +794,21 @@ fn load_bop_results(text: &str) -> Vec<(u64, u64, u64, f64, Vec<f64>, Vec<f64>, 
         let floats = |s: &str| -> Vec<f64> { s.split_whitespace().map(|v| v.trim().parse().unwrap()).collect() };
         let (r, t) = (floats(e[4]), floats(e[5]));
         assert_eq!((r.len(), t.len()), (9, 3));
-        out.push((
-            e[0].trim().parse().unwrap(),
-            e[1].trim().parse().unwrap(),
-            e[2].trim().parse().unwrap(),
-            e[3].trim().parse().unwrap(),
-            r,
+        let int = |s: &str| -> u64 { s.trim().parse().unwrap() };
+        out.push(BopRow {
+            scene_id: int(e[0]),
+            im_id: int(e[1]),
+            obj_id: int(e[2]),
+            _score: e[3].trim().parse().unwrap(),
+            _r: r,
             t,
-            e[6].trim().parse().unwrap(),
-        ));
+            time: e[6].trim().parse().unwrap(),
+        });
     }
     let mut times = std::collections::HashMap::new();
     for r in &out {
-        let t0: f64 = *times.entry((r.0, r.1)).or_insert(r.6);
-        assert!((t0 - r.6).abs() <= 0.001, "image {:?}: times differ", (r.0, r.1));
+        let t0: f64 = *times.entry((r.scene_id, r.im_id)).or_insert(r.time);
+        assert!((t0 - r.time).abs() <= 0.001, "image {:?}: times differ", (r.scene_id, r.im_id));
     }
     out
 }
@@ -828,9 +840,9 @@ fn a_bop_split_to_one_results_file_bop_toolkit_reads() {
     assert_eq!(text.matches("scene_id").count(), 1, "{text}");
     let rows = load_bop_results(&text);
     for (scene_id, obj, t) in truth {
-        let first = rows.iter().find(|r| r.0 == scene_id).expect("rows of every scene");
-        assert_eq!((first.1, first.2), (0, obj));
-        let tm: Vec<f64> = first.5.iter().map(|v| v / 1000.0).collect();
+        let first = rows.iter().find(|r| r.scene_id == scene_id).expect("rows of every scene");
+        assert_eq!((first.im_id, first.obj_id), (0, obj));
+        let tm: Vec<f64> = first.t.iter().map(|v| v / 1000.0).collect();
         assert!(err_t(&tm, t) < 0.03, "scene {scene_id}: {tm:?} vs {t:?}");
     }
     // No obj_id anywhere (no scene_gt.json, no metadata, no flag): an error, not obj_id 1.
@@ -843,7 +855,7 @@ fn a_bop_split_to_one_results_file_bop_toolkit_reads() {
     let f = out.join("results.csv");
     let run = isa(&["predict", m, "--scene", s, "--format", "bop", "--obj-id", "9", "-o", f.to_str().unwrap(), "-q"]);
     expect_exit(&run, 0, &["METHOD_DATASET-SPLIT.csv"]);
-    assert!(load_bop_results(&std::fs::read_to_string(&f).unwrap()).iter().all(|r| r.2 == 9));
+    assert!(load_bop_results(&std::fs::read_to_string(&f).unwrap()).iter().all(|r| r.obj_id == 9));
 }
 
 /// Issue 19: the JSON gives the pose also as one 4x4 matrix.

@@ -225,7 +225,9 @@ pub fn depth_from_points<'py>(
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add("InputWarning", m.py().get_type::<InputWarning>())?;
+    let ty = m.py().get_type::<InputWarning>();
+    ty.setattr("__module__", "isa._core")?; // the macro names the bare "_core"
+    m.add("InputWarning", ty)?;
     m.add_function(wrap_pyfunction!(depth_to_metres, m)?)?;
     m.add_function(wrap_pyfunction!(depth_from_points, m)?)?;
     Ok(())

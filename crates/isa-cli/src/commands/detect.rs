@@ -26,6 +26,15 @@ struct Model {
     shapes: Option<(ShapeLibrary, PathBuf)>,
 }
 
+/// One image's detections, with its job, the core's warnings about it and its time.
+struct FrameResult {
+    job: ImageJob,
+    warnings: Vec<String>,
+    cam: Camera,
+    out: DetectOutput,
+    secs: f64,
+}
+
 fn params(sources: &[(Value, String)]) -> CliResult<Valid<DetectParams>> {
     let mut p = DetectParams::default();
     for (json, source) in sources {
@@ -118,11 +127,11 @@ fn detection_json(d: &scene::Detection) -> Value {
 fn to_json(
     models: &[Model],
     params: &DetectParams,
-    results: &[((ImageJob, Vec<String>), Camera, DetectOutput, f64)],
+    results: &[FrameResult],
 ) -> String {
     let images: Vec<Value> = results
         .iter()
-        .map(|((job, warnings), cam, out, secs)| {
+        .map(|FrameResult { job, warnings, cam, out, secs }| {
             json!({
                 "depth": job.path.display().to_string(),
                 "image_id": job.id,
@@ -163,10 +172,10 @@ fn to_bop(
     models: &[Model],
     ids: &[u64],
     scene_id: u64,
-    results: &[((ImageJob, Vec<String>), Camera, DetectOutput, f64)],
+    results: &[FrameResult],
 ) -> CliResult<String> {
     let mut s = String::from(output::BOP_HEADER);
-    for ((job, _), _, out, secs) in results {
+    for FrameResult { job, out, secs, .. } in results {
         let im_id = output::bop_image_id(job)?;
         for d in &out.detections {
             let k = models
@@ -212,7 +221,13 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
             scene::detect(&metres, cam, &scene_models, g, None, &params)
         })??;
         let secs = t0.elapsed().as_secs_f64();
-        results.push(((job, d.warnings), cam, out, secs));
+        results.push(FrameResult {
+            job,
+            warnings: d.warnings,
+            cam,
+            out,
+            secs,
+        });
         pb.inc(1);
     }
     pb.finish_and_clear();
