@@ -100,7 +100,14 @@ pub struct TrainArgs {
     pub params: Option<PathBuf>,
     #[command(flatten)]
     pub flags: TrainFlags,
-    /// Worker threads [default: all cores]. Does not change the model.
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+/// How a command runs (shared by every command that computes).
+#[derive(Args)]
+pub struct RunArgs {
+    /// Worker threads [default: all cores]. Does not change the output.
     #[arg(long)]
     pub threads: Option<usize>,
     /// No progress display.
@@ -112,35 +119,27 @@ pub struct TrainArgs {
 #[derive(Args, Serialize)]
 pub struct TrainFlags {
     #[arg(long, help = dflt("Number of trees", fp().n_trees))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub n_trees: Option<usize>,
     #[arg(long, help = dflt("Maximum tree depth, root = 0", fp().max_depth))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_depth: Option<usize>,
     #[arg(long, help = dflt(
         "Split criterion: Q1, Q1+Q2, Q1+Q3 or Q1+Q2+Q3 (paper Eq. 9-11); Q2 needs link angles and \
          Q3 node offsets in the training set",
         fp().quality.as_str()
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub quality: Option<String>,
     #[arg(long, help = dflt("Random feature candidates per node", fp().n_candidates))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub n_candidates: Option<usize>,
     #[arg(long, help = dflt("Minimum parts in each child of a split", fp().min_samples_leaf))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_samples_leaf: Option<usize>,
     #[arg(long, help = dflt("Nodes with fewer parts become leaves", fp().min_samples_split))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_samples_split: Option<usize>,
     #[arg(long, value_parser = finite::<f64>, help = dflt("Fraction of the parts each tree trains on, in (0, 1]", fp().bag_fraction))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub bag_fraction: Option<f64>,
     #[arg(long, help = dflt(
         "Seed of every random choice (same seed + data = same model bytes)",
         fp().seed
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
 }
 
@@ -230,12 +229,8 @@ pub struct PredictArgs {
     /// "vote" or flat); flags override it.
     #[arg(long, value_name = "JSON")]
     pub params: Option<PathBuf>,
-    /// Worker threads [default: all cores]. Does not change the result.
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// No progress display.
-    #[arg(short, long)]
-    pub quiet: bool,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// Inference-parameter flags (flat keys of PredictParams): the given ones form the "flags"
@@ -243,52 +238,43 @@ pub struct PredictArgs {
 #[derive(Args, Serialize)]
 pub struct PredictFlags {
     #[arg(long, help = model_dflt("Parts on every STRIDE-th pixel in u and v", pp().stride))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub stride: Option<usize>,
     // allow_hyphen_values: a value such as -inf reaches the finite check (and its message)
     // instead of reading as short flags.
     #[arg(long, allow_hyphen_values = true, value_parser = finite::<f32>,
           help = model_dflt("Ignore pixels nearer than this, metres", pp().min_depth))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_depth: Option<f32>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Ignore pixels farther than this, metres",
         pp().max_depth.map_or("no limit".to_string(), |m| m.to_string())
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_depth: Option<f32>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Radius of the position kernel and grid cell, metres",
         pp().vote.position_bandwidth
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub position_bandwidth: Option<f32>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Geodesic radius of the rotation kernel, radians",
         pp().vote.rotation_bandwidth
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub rotation_bandwidth: Option<f32>,
     #[arg(long, help = model_dflt("Hypotheses per image at most", pp().vote.max_hypotheses))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_hypotheses: Option<usize>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Positions closer than this to a better hypothesis are suppressed, metres",
         pp().vote.nms_radius
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub nms_radius: Option<f32>,
     #[arg(long, help = model_dflt(
         "Rotation modes per position (for symmetric objects)",
         pp().vote.rotations_per_position
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub rotations_per_position: Option<usize>,
     #[arg(long, help = model_dflt(
         "Drop hypotheses supported by fewer votes",
         pp().vote.min_support
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_support: Option<usize>,
 }
 
@@ -377,33 +363,23 @@ pub struct DetectArgs {
     /// refine; null switches verify or refine off); flags override it.
     #[arg(long, value_name = "JSON")]
     pub params: Option<PathBuf>,
-    /// Worker threads [default: all cores]. Does not change the result.
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// No progress display.
-    #[arg(short, long)]
-    pub quiet: bool,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// Detection-parameter flags (fields of DetectParams): the given ones form the "flags" overlay.
 #[derive(Args, Serialize)]
 pub struct DetectFlags {
     #[arg(long, help = dflt("Parts on every STRIDE-th pixel of each forest's voting", dp().stride))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub stride: Option<usize>,
     #[arg(long, help = dflt("Hypotheses per category forest", dp().max_hypotheses))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_hypotheses: Option<usize>,
     #[arg(long, help = dflt("Detections per image at most", dp().max_detections))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_detections: Option<usize>,
     #[arg(long, help = dflt("Hypotheses refined per category", dp().refine_top))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub refine_top: Option<usize>,
     #[arg(long, help = dflt("Cross-category NMS: IoU above which a box goes", dp().nms_iou))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub nms_iou: Option<f64>,
     #[arg(long, help = "Drop detections scoring below this [default: none]")]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_score: Option<f64>,
 }

@@ -194,7 +194,7 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
     let params = params(&sources)?; // bad flags or parameter files fail before a model is read
     let g = gravity(&a)?;
     let jobs = image_jobs(&a.depth, &a.camera)?;
-    let pb = spinner(a.quiet, format!("loading {} models", a.models.len()));
+    let pb = spinner(a.run.quiet, format!("loading {} models", a.models.len()));
     let models = load_models(&a)?;
     pb.finish_and_clear();
     let ids = obj_ids(&a, &models)?;
@@ -210,14 +210,14 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
             .map_err(|e| CliError::input(e.to_string()))
         })
         .collect::<CliResult<Vec<_>>>()?;
-    let pb = bar(a.quiet || jobs.len() < 2, jobs.len() as u64, "detecting");
+    let pb = bar(a.run.quiet || jobs.len() < 2, jobs.len() as u64, "detecting");
     let mut results = Vec::with_capacity(jobs.len());
     for job in jobs {
         let d = inputs::read_depth(&job)?;
         let metres: Vec<f32> = d.mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
         let cam = Camera::new(job.k, d.width, d.height)?;
         let t0 = std::time::Instant::now();
-        let out = with_threads(a.threads, || {
+        let out = with_threads(a.run.threads, || {
             scene::detect(&metres, cam, &scene_models, g, None, &params)
         })??;
         let secs = t0.elapsed().as_secs_f64();

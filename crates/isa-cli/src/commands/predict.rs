@@ -168,7 +168,7 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
     sources.push((flags_json(&a.flags), FLAGS.to_string()));
     params_over(&Valid::default(), &sources)?; // bad flags or parameter files fail before a model is read
     let jobs = jobs(&a)?;
-    let pb = spinner(a.quiet, format!("loading {}", a.model.display()));
+    let pb = spinner(a.run.quiet, format!("loading {}", a.model.display()));
     let forest = load_model(&a.model)?;
     pb.finish_and_clear();
     let params = params_over(&forest.predict_defaults, &sources)?;
@@ -178,7 +178,7 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
             a.model.display()
         )));
     }
-    let pb = bar(a.quiet || jobs.len() < 2, jobs.len() as u64, "predicting");
+    let pb = bar(a.run.quiet || jobs.len() < 2, jobs.len() as u64, "predicting");
     let mut results = Vec::with_capacity(jobs.len());
     for job in jobs {
         let d = inputs::read_depth(&job)?;
@@ -188,7 +188,7 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
         };
         let img = DepthImage::new(&d.mm, d.width, d.height)?;
         let t0 = Instant::now();
-        let hyps = with_threads(a.threads, || vote::predict(&forest, &img, &job.k, &params))??;
+        let hyps = with_threads(a.run.threads, || vote::predict(&forest, &img, &job.k, &params))??;
         let seconds = t0.elapsed().as_secs_f64();
         results.push(ImageResult {
             width: d.width,
