@@ -37,6 +37,7 @@ __all__ = [
     "ShardTrainer",
     "TRAINSET_FORMAT_VERSION",
     "__version__",
+    "_cli_main",
     "_testing",
     "default_predict_params",
     "depth_from_points",
@@ -96,6 +97,9 @@ class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
 class InputWarning(UserWarning):
     """An input accepted but probably wrong: a depth range implausible for a depth sensor (a
     wrong ``depth_scale``), an image that looks transposed against its intrinsics."""
+
+def _cli_main(argv: list[str]) -> int:
+    """Runs the ``isa`` command line (``argv``: program name first); returns the exit code."""
 
 def depth_to_metres(depth: npt.ArrayLike, K: Any, depth_scale: float | None = None) -> npt.NDArray[np.float32]:
     """A depth image (H, W) or organised point cloud (H, W, 3) as float32 metres, checked as
