@@ -14,12 +14,12 @@ $PY -m maturin build --release --quiet --out "$work/dist" >/dev/null
 wheel=$(ls "$work"/dist/isa-*.whl)
 echo "built $(basename "$wheel")"
 $PY -m venv "$work/venv"
-"$work/venv/bin/pip" install -q --disable-pip-version-check --no-deps "$wheel"
 "$work/venv/bin/pip" install -q --disable-pip-version-check "numpy>=1.26,<3" "Pillow>=10,<13"
+"$work/venv/bin/pip" install -q --disable-pip-version-check --no-deps "$wheel"
 "$work/venv/bin/isa" --help >/dev/null
 cd "$work"   # nothing of the checkout on the path: the installed package only
 "$work/venv/bin/python" - <<'PY'
-import json, subprocess, sys
+import json, os, subprocess, sys
 import numpy as np
 from PIL import Image
 import isa
@@ -47,7 +47,8 @@ for i, u, v in parts:
 offsets = np.asarray(offsets, np.float32)
 rotations = np.tile(np.array([1, 0, 0, 0], np.float32), (len(parts), 1))
 _core.write_trainset("plate.isat", images, parts, offsets, rotations)
-run = lambda *a: subprocess.run(["isa", *a], capture_output=True, text=True)
+exe = os.path.join(os.path.dirname(sys.executable), "isa")  # the command pip installed
+run = lambda *a: subprocess.run([exe, *a], capture_output=True, text=True)
 r = run("train", "plate.isat", "-o", "plate.isa", "--quality", "Q1", "--n-trees", "3", "--max-depth", "14", "-q")
 assert r.returncode == 0, r.stderr
 Image.fromarray(plate((0.0, 0.0, 1.5))).save("frame.png")
