@@ -4,13 +4,13 @@
 # the end-to-end below), and run the `isa` command pip installed: --help, then train -> predict
 # on a synthetic plate whose pose is known. Prints the wheel's name (abi3: one wheel for
 # CPython 3.10+) and ends with "wheel check: 1 passed, 0 failed".
-#   bash scripts/wheel_check.sh            # PYTHON=python3.12 to make the venv with another one
+#   bash scripts/wheel_check.sh     # PYTHON=/path/to/python3.13: the venv (not the build) on another one
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-$PY -m maturin build --release --quiet --out "$work/dist" >/dev/null
+python3 -m maturin build --release --quiet --out "$work/dist" >/dev/null
 wheel=$(ls "$work"/dist/isa-*.whl)
 echo "built $(basename "$wheel")"
 $PY -m venv "$work/venv"
