@@ -327,10 +327,10 @@ def test_hypotheses_are_typed_and_read_like_the_old_dicts(toy_forest):
     h = f.predict(depth, K)[0]
     assert isinstance(h, _core.Hypothesis) and isinstance(h, Mapping)
     d = dict(h)
-    assert set(d) == {"R", "t", "quaternion", "score", "support", "position_score", "position_support"}
+    assert set(d) == {"R", "t", "pose", "quaternion", "score", "support", "position_score", "position_support"}
     assert h.to_dict()["support"] == d["support"] == h.support and list(h.keys()) == list(d)
     np.testing.assert_array_equal(h["R"], h.R)
-    assert h.get("score") == h.score and h.get("nope", 7) == 7 and "t" in h and len(h) == 7
+    assert h.get("score") == h.score and h.get("nope", 7) == 7 and "t" in h and len(h) == 8
     with pytest.raises(KeyError):
         h["nope"]
     assert f.predict(depth, K, max_hypotheses=1)[0].score == h.score

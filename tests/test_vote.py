@@ -67,7 +67,7 @@ def test_recovers_the_plate_in_a_larger_frame(trained):
     hyps = f.predict(depth, Kbig, stride=2)
     assert hyps, "no hypothesis"
     best = hyps[0]
-    assert set(best) == {"R", "t", "quaternion", "score", "support", "position_score", "position_support"}
+    assert set(best) == {"R", "t", "pose", "quaternion", "score", "support", "position_score", "position_support"}
     assert best["R"].shape == (3, 3) and best["t"].shape == (3,) and best["quaternion"].shape == (4,)
     assert np.linalg.norm(best["t"] - ssc) < 0.03, best
     assert np.allclose(best["R"], np.eye(3), atol=0.05)

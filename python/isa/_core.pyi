@@ -19,6 +19,7 @@ __all__ = [
     "FOREST_DEFAULTS",
     "Forest",
     "Hypothesis",
+    "InputWarning",
     "InvalidInputError",
     "InvalidParameterError",
     "InvalidTypeError",
@@ -36,8 +37,11 @@ __all__ = [
     "ShardTrainer",
     "TRAINSET_FORMAT_VERSION",
     "__version__",
+    "_cli_main",
     "_testing",
     "default_predict_params",
+    "depth_from_points",
+    "depth_to_metres",
     "depth_features",
     "detect",
     "find_modes",
@@ -91,6 +95,21 @@ class IsaPermissionError(IsaIOError, PermissionError):
 class IsaIsADirectoryError(IsaIOError, IsADirectoryError):
     """A path names a directory where isa needs a file."""
 
+class InputWarning(UserWarning):
+    """An input accepted but probably wrong: a depth range implausible for a depth sensor (a
+    wrong ``depth_scale``), an image that looks transposed against its intrinsics."""
+
+def _cli_main(argv: list[str]) -> int:
+    """Runs the ``isa`` command line (``argv``: program name first); returns the exit code."""
+
+def depth_to_metres(depth: npt.ArrayLike, K: Any, depth_scale: float | None = None) -> npt.NDArray[np.float32]:
+    """A depth image (H, W) or organised point cloud (H, W, 3) as float32 metres, checked as
+    ``Forest.predict`` checks it (``depth_scale``, image size, ``InputWarning``)."""
+
+def depth_from_points(points: npt.ArrayLike, K: Any, width: int, height: int) -> npt.NDArray[np.float32]:
+    """Camera-frame points (N, 3) float64 projected to a (height, width) float32 depth image in
+    the points' unit (nearest point per pixel, 0 = missing)."""
+
 @final
 class Hypothesis:
     """A ranked 6D pose, ``X_cam = R @ X_obj + t``. Fields are attributes and also items under
@@ -103,6 +122,9 @@ class Hypothesis:
     @property
     def t(self) -> npt.NDArray[np.float64]:
         """Translation (3,), metres: the object-frame origin in the camera frame."""
+    @property
+    def pose(self) -> npt.NDArray[np.float64]:
+        """The 4x4 pose ``[[R, t], [0, 0, 0, 1]]``: ``X_cam = pose @ [X_obj, 1]``."""
     @property
     def quaternion(self) -> npt.NDArray[np.float64]:
         """The rotation as (w, x, y, z), w >= 0."""

@@ -64,3 +64,26 @@ def metres_to_mm(depth, depth_scale: float = 1.0) -> np.ndarray:
     uint16 millimetre images, BOP depth PNGs and Linemod's input share (callers clip or refuse
     out-of-range values their own way)."""
     return np.rint(depth * (1000.0 / depth_scale))
+
+
+def depth_from_points(points, intrinsics, size: tuple[int, int] | None = None) -> np.ndarray:
+    """A point cloud in the camera frame as the float32 depth image :meth:`Forest.predict
+    <isa.forest.model.Forest.predict>` and :func:`isa.detection.detect` take, in the points' unit
+    (pass ``depth_scale=`` when that is not metres). ``points``: (N, 3) unorganised or (H, W, 3)
+    organised; each is projected through ``intrinsics`` (an :class:`Intrinsics`, a 3x3 matrix or
+    (fx, fy, cx, cy)) and the nearest kept per pixel (0 = missing; points behind the camera or
+    outside the image dropped). ``size`` (width, height): an organised cloud's own, else the
+    intrinsics' (``Intrinsics`` carries one), else required."""
+    from isa import _core
+
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim == 3 and pts.shape[2] == 3:
+        size = size or (pts.shape[1], pts.shape[0])
+        pts = pts.reshape(-1, 3)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise InvalidValueError(f"points: expected (N, 3) or (H, W, 3), got shape {pts.shape}")
+    if size is None:
+        if not isinstance(intrinsics, Intrinsics):
+            raise InvalidValueError("points: give size=(width, height) (the intrinsics carry no image size)")
+        size = (intrinsics.width, intrinsics.height)
+    return _core.depth_from_points(np.ascontiguousarray(pts), intrinsics, int(size[0]), int(size[1]))

@@ -14,6 +14,10 @@ class is also the matching builtin, so ``except ValueError`` / ``except OSError`
   or in the wrong layout.
 * ``DataNotFoundError`` (also ``FileNotFoundError``, Python side) — a data file or folder is missing.
 
+``InputWarning`` (``UserWarning``) flags an input that is accepted but probably wrong: a depth
+range implausible for a depth sensor in metres (a wrong ``depth_scale``), an image that looks
+transposed against its intrinsics.
+
 Argument checks raise ``InvalidValueError`` / ``InvalidTypeError`` (``InvalidInputError`` that
 is also ``ValueError`` / ``TypeError``; ``InvalidTypeError`` is defined in ``isa._core``, which
 raises it for an argument of the wrong type), ``MissingDependencyError``
@@ -24,6 +28,7 @@ raises it for an argument of the wrong type), ``MissingDependencyError``
 from __future__ import annotations
 
 from isa._core import (
+    InputWarning,
     InvalidInputError,
     InvalidParameterError,
     InvalidTypeError,
@@ -59,6 +64,7 @@ class UsageError(IsaError, RuntimeError):
 __all__ = [
     "DataError",
     "DataNotFoundError",
+    "InputWarning",
     "InvalidInputError",
     "InvalidParameterError",
     "InvalidTypeError",

@@ -12,14 +12,14 @@ import numpy as np
 
 from detect_reference.refine import refine_pose
 from detect_reference.verify import DepthEvidence, verify_pose
+from isa import _core
 from isa.camera import Intrinsics
 from isa.detection.gravity import estimate_gravity
-from isa.detection.multi import CategoryModel, DetectParams, DetectResult, SceneDetection, _models, _to_metres
+from isa.detection.multi import CategoryModel, DetectParams, DetectResult, SceneDetection, _models
 from isa.detection.refine import upright_points
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import VerifyParams
 from isa.evaluation.boxes3d import Box3D, footprint_intersection_area, iou_3d, rot_z
-from isa.exceptions import InvalidValueError
 
 
 def _overlap(a: Box3D, b: Box3D) -> tuple[float, float]:
@@ -169,10 +169,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
 
     secs: dict[str, float] = {}
     t0 = time.perf_counter()
-    depth = _to_metres(depth)
-    if depth.shape != (intrinsics.height, intrinsics.width):
-        raise InvalidValueError(f"detect: depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
-                         f"{intrinsics.width}x{intrinsics.height}")
+    depth = _core.depth_to_metres(depth, intrinsics)  # the package's conversion and checks
     ms = _models(models)
     grav = estimate_gravity(depth, intrinsics, gravity)
     Rg = grav.R

@@ -100,7 +100,14 @@ pub struct TrainArgs {
     pub params: Option<PathBuf>,
     #[command(flatten)]
     pub flags: TrainFlags,
-    /// Worker threads [default: all cores]. Does not change the model.
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+/// How a command runs (shared by every command that computes).
+#[derive(Args)]
+pub struct RunArgs {
+    /// Worker threads [default: all cores]. Does not change the output.
     #[arg(long)]
     pub threads: Option<usize>,
     /// No progress display.
@@ -112,36 +119,52 @@ pub struct TrainArgs {
 #[derive(Args, Serialize)]
 pub struct TrainFlags {
     #[arg(long, help = dflt("Number of trees", fp().n_trees))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub n_trees: Option<usize>,
     #[arg(long, help = dflt("Maximum tree depth, root = 0", fp().max_depth))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_depth: Option<usize>,
     #[arg(long, help = dflt(
         "Split criterion: Q1, Q1+Q2, Q1+Q3 or Q1+Q2+Q3 (paper Eq. 9-11); Q2 needs link angles and \
          Q3 node offsets in the training set",
         fp().quality.as_str()
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub quality: Option<String>,
     #[arg(long, help = dflt("Random feature candidates per node", fp().n_candidates))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub n_candidates: Option<usize>,
     #[arg(long, help = dflt("Minimum parts in each child of a split", fp().min_samples_leaf))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_samples_leaf: Option<usize>,
     #[arg(long, help = dflt("Nodes with fewer parts become leaves", fp().min_samples_split))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_samples_split: Option<usize>,
     #[arg(long, value_parser = finite::<f64>, help = dflt("Fraction of the parts each tree trains on, in (0, 1]", fp().bag_fraction))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub bag_fraction: Option<f64>,
     #[arg(long, help = dflt(
         "Seed of every random choice (same seed + data = same model bytes)",
         fp().seed
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+}
+
+/// How depth images meet their camera: intrinsics from flags or a camera file, the image id,
+/// the depth unit (shared by `isa predict` and `isa detect`).
+#[derive(Args)]
+pub struct CameraArgs {
+    /// Pinhole intrinsics in pixels: FX FY CX CY.
+    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera",
+          allow_negative_numbers = true, value_parser = finite::<f64>)]
+    pub intrinsics: Option<Vec<f64>>,
+    /// Camera file: a BOP scene_camera.json (per image id: cam_K, depth_scale; the id is the
+    /// PNG's file name, e.g. 000012.png, or --image-id) or a BOP camera.json (fx, fy, cx, cy,
+    /// width, height, depth_scale; the image size is then checked).
+    #[arg(short, long, value_name = "JSON")]
+    pub camera: Option<PathBuf>,
+    /// Image id for --camera scene_camera.json when the file name is not one [default: from the
+    /// file name].
+    #[arg(long)]
+    pub image_id: Option<u64>,
+    #[arg(long, value_parser = finite::<f64>, help = dflt(
+        isa_core::params::DEPTH_SCALE_HELP,
+        "the camera file's depth_scale, else 1"
+    ))]
+    pub depth_scale: Option<f64>,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -172,36 +195,32 @@ pub struct PredictArgs {
     /// Model file written by `isa train` or Python's `Forest.save`.
     #[arg(value_name = "MODEL")]
     pub model: PathBuf,
-    /// Depth images: 16-bit single-channel PNGs in millimetres (times the camera's depth_scale
-    /// with --camera), 0 = missing.
+    /// Depth images: 16-bit single-channel PNGs in millimetres (times --depth-scale or the
+    /// camera's depth_scale), 0 = missing.
     #[arg(value_name = "PNG", conflicts_with = "scene")]
     pub depth: Vec<PathBuf>,
-    /// Pinhole intrinsics in pixels: FX FY CX CY.
-    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera",
-          allow_negative_numbers = true, value_parser = finite::<f64>)]
-    pub intrinsics: Option<Vec<f64>>,
-    /// Camera file: a BOP scene_camera.json (per image id: cam_K, depth_scale; the id is the
-    /// PNG's file name, e.g. 000012.png, or --image-id) or a BOP camera.json (fx, fy, cx, cy,
-    /// width, height, depth_scale; the image size is then checked).
-    #[arg(short, long, value_name = "JSON")]
-    pub camera: Option<PathBuf>,
-    /// A BOP scene folder: every depth/*.png with its scene_camera.json.
-    #[arg(long, value_name = "DIR")]
-    pub scene: Option<PathBuf>,
-    /// Image id for --camera scene_camera.json when the file name is not one [default: from the
-    /// file name].
-    #[arg(long)]
-    pub image_id: Option<u64>,
+    #[command(flatten)]
+    pub camera: CameraArgs,
+    /// BOP scene folders (every depth/*.png with its scene_camera.json), or a split folder
+    /// holding them (every scene): one results file with one header. Repeatable.
+    #[arg(long, value_name = "DIR", num_args = 1..)]
+    pub scene: Vec<PathBuf>,
     /// BOP scene id for --format bop [default: the --scene folder's name if a number, else 0].
     #[arg(long)]
     pub scene_id: Option<u64>,
-    /// BOP object id of the category for --format bop.
-    #[arg(long, default_value_t = 1)]
-    pub obj_id: u64,
+    /// BOP object id for --format bop [default: the model's metadata "obj_id", else the one
+    /// object of the image's category in the scene's scene_gt.json].
+    #[arg(long)]
+    pub obj_id: Option<u64>,
+    /// Method name in the BOP results file name, `METHOD_DATASET-SPLIT.csv`, written when -o is
+    /// a folder (DATASET and SPLIT from the --scene path, `.../DATASET/SPLIT/SCENE`).
+    #[arg(long, default_value = "isa")]
+    pub method: String,
     /// Output format.
     #[arg(short, long, value_enum, default_value_t = Format::Json)]
     pub format: Format,
-    /// Output file [default: standard output].
+    /// Output file [default: standard output]; with --format bop a folder gets the file
+    /// bop_toolkit expects, METHOD_DATASET-SPLIT.csv.
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
     #[command(flatten)]
@@ -210,12 +229,8 @@ pub struct PredictArgs {
     /// "vote" or flat); flags override it.
     #[arg(long, value_name = "JSON")]
     pub params: Option<PathBuf>,
-    /// Worker threads [default: all cores]. Does not change the result.
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// No progress display.
-    #[arg(short, long)]
-    pub quiet: bool,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// Inference-parameter flags (flat keys of PredictParams): the given ones form the "flags"
@@ -223,52 +238,43 @@ pub struct PredictArgs {
 #[derive(Args, Serialize)]
 pub struct PredictFlags {
     #[arg(long, help = model_dflt("Parts on every STRIDE-th pixel in u and v", pp().stride))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub stride: Option<usize>,
     // allow_hyphen_values: a value such as -inf reaches the finite check (and its message)
     // instead of reading as short flags.
     #[arg(long, allow_hyphen_values = true, value_parser = finite::<f32>,
           help = model_dflt("Ignore pixels nearer than this, metres", pp().min_depth))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_depth: Option<f32>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Ignore pixels farther than this, metres",
         pp().max_depth.map_or("no limit".to_string(), |m| m.to_string())
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_depth: Option<f32>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Radius of the position kernel and grid cell, metres",
         pp().vote.position_bandwidth
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub position_bandwidth: Option<f32>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Geodesic radius of the rotation kernel, radians",
         pp().vote.rotation_bandwidth
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub rotation_bandwidth: Option<f32>,
     #[arg(long, help = model_dflt("Hypotheses per image at most", pp().vote.max_hypotheses))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_hypotheses: Option<usize>,
     #[arg(long, value_parser = finite::<f32>, help = model_dflt(
         "Positions closer than this to a better hypothesis are suppressed, metres",
         pp().vote.nms_radius
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub nms_radius: Option<f32>,
     #[arg(long, help = model_dflt(
         "Rotation modes per position (for symmetric objects)",
         pp().vote.rotations_per_position
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub rotations_per_position: Option<usize>,
     #[arg(long, help = model_dflt(
         "Drop hypotheses supported by fewer votes",
         pp().vote.min_support
     ))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_support: Option<usize>,
 }
 
@@ -312,29 +318,32 @@ pub enum DetectFormat {
 pub struct DetectArgs {
     /// Category model: PATH or CATEGORY=PATH (default category: the model's metadata). Repeat
     /// for every category.
-    #[arg(short, long = "model", value_name = "[CATEGORY=]MODEL", required = true)]
+    #[arg(
+        short,
+        long = "model",
+        value_name = "[CATEGORY=]MODEL",
+        required = true
+    )]
     pub models: Vec<String>,
-    /// Depth images: 16-bit single-channel PNGs in millimetres (times the camera's depth_scale
-    /// with --camera), 0 = missing.
+    /// Depth images: 16-bit single-channel PNGs in millimetres (times --depth-scale or the
+    /// camera's depth_scale), 0 = missing.
     #[arg(value_name = "PNG", required = true)]
     pub depth: Vec<PathBuf>,
-    /// Pinhole intrinsics in pixels: FX FY CX CY.
-    #[arg(short = 'k', long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"], conflicts_with = "camera")]
-    pub intrinsics: Option<Vec<f64>>,
-    /// Camera file: a BOP scene_camera.json or camera.json (as for `isa predict`).
-    #[arg(short, long, value_name = "JSON")]
-    pub camera: Option<PathBuf>,
+    #[command(flatten)]
+    pub camera: CameraArgs,
     /// Gravity in camera coordinates (OpenCV: x right, y down, z forward), any length, e.g.
     /// 0,1,0 for a level camera [default: the floor's normal, else the votes' up axis].
-    #[arg(long, value_name = "GX,GY,GZ", value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "GX,GY,GZ",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     pub gravity: Option<Vec<f64>>,
     /// Folder of shape libraries `<category>.shapes.isl` [default: `<model>.shapes.isl` beside
     /// each model].
     #[arg(long, value_name = "DIR")]
     pub shapes: Option<PathBuf>,
-    /// Image id for a scene_camera.json when the file name is not one [default: from the name].
-    #[arg(long)]
-    pub image_id: Option<u64>,
     /// BOP scene id for --format bop.
     #[arg(long, default_value_t = 0)]
     pub scene_id: u64,
@@ -354,33 +363,23 @@ pub struct DetectArgs {
     /// refine; null switches verify or refine off); flags override it.
     #[arg(long, value_name = "JSON")]
     pub params: Option<PathBuf>,
-    /// Worker threads [default: all cores]. Does not change the result.
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// No progress display.
-    #[arg(short, long)]
-    pub quiet: bool,
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// Detection-parameter flags (fields of DetectParams): the given ones form the "flags" overlay.
 #[derive(Args, Serialize)]
 pub struct DetectFlags {
     #[arg(long, help = dflt("Parts on every STRIDE-th pixel of each forest's voting", dp().stride))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub stride: Option<usize>,
     #[arg(long, help = dflt("Hypotheses per category forest", dp().max_hypotheses))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_hypotheses: Option<usize>,
     #[arg(long, help = dflt("Detections per image at most", dp().max_detections))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_detections: Option<usize>,
     #[arg(long, help = dflt("Hypotheses refined per category", dp().refine_top))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub refine_top: Option<usize>,
     #[arg(long, help = dflt("Cross-category NMS: IoU above which a box goes", dp().nms_iou))]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub nms_iou: Option<f64>,
     #[arg(long, help = "Drop detections scoring below this [default: none]")]
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_score: Option<f64>,
 }

@@ -47,3 +47,9 @@ impl From<IsaError> for CliError {
         }
     }
 }
+
+/// Prints `isa: warning: msg` to standard error (not eprintln!, which panics when it is closed).
+pub fn warn(msg: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "isa: warning: {msg}");
+}

@@ -1,23 +1,30 @@
 //! Reading the CLI's inputs: depth PNGs, intrinsics (flags, BOP `scene_camera.json` or BOP
-//! `camera.json`), BOP scene folders. Every error names the file and what was wrong.
+//! `camera.json`), BOP scene and split folders and their `scene_gt.json`. Depth units, the size
+//! check and the warnings are the core's (`isa_core::depth_input`). Every error names the file
+//! and what was wrong.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use isa_core::vote::Intrinsics;
+use serde_json::json;
 
+use isa_core::depth_input::{self, DepthValues};
+use isa_core::vote::Intrinsics;
+use isa_core::{DepthParams, Valid};
+
+use crate::commands::predict::ImageJob;
 use crate::error::{CliError, CliResult};
 
-/// A depth image in millimetres plus where it came from.
+/// A depth image in millimetres, and what looked wrong about it.
 pub struct Depth {
-    pub path: PathBuf,
     pub width: usize,
     pub height: usize,
     pub mm: Vec<u16>,
+    pub warnings: Vec<String>,
 }
 
-/// Reads a 16-bit single-channel PNG; `scale` converts its values to millimetres (BOP's
-/// `depth_scale`; 1 for plain uint16 mm).
-pub fn read_depth_png(path: &Path, scale: f64) -> CliResult<Depth> {
+/// The stored values of a 16-bit single-channel PNG, and its width and height.
+fn read_png16(path: &Path) -> CliResult<(Vec<u16>, usize, usize)> {
     if !path.exists() {
         return Err(CliError::missing(path, "depth image"));
     }
@@ -33,28 +40,56 @@ pub fn read_depth_png(path: &Path, scale: f64) -> CliResult<Depth> {
             ))
         })?;
     let (width, height) = (img.width() as usize, img.height() as usize);
-    let mm: Vec<u16> = match img {
-        image::DynamicImage::ImageLuma16(buf) => buf.into_raw(),
-        other => {
-            return Err(CliError::input(format!(
-            "depth image {}: expected a 16-bit single-channel PNG (uint16 millimetres), got {:?}",
+    match img {
+        image::DynamicImage::ImageLuma16(buf) => Ok((buf.into_raw(), width, height)),
+        other => Err(CliError::input(format!(
+            "depth image {}: expected a 16-bit single-channel PNG (uint16 millimetres, or units of --depth-scale), got {:?}",
             path.display(),
             other.color()
-        )))
-        }
-    };
-    let mm = if (scale - 1.0).abs() < 1e-12 {
-        mm
-    } else {
-        mm.into_iter()
-            .map(|v| (f64::from(v) * scale).round().min(65535.0) as u16)
-            .collect()
-    };
+        ))),
+    }
+}
+
+/// Reads the depth PNG of `job` in millimetres (by its depth parameters), checked against its
+/// intrinsics and stated size; the core's warnings (implausible range, looks transposed) are
+/// kept and printed to standard error.
+pub fn read_depth(job: &ImageJob) -> CliResult<Depth> {
+    let (raw, width, height) = read_png16(&job.path)?;
+    let at = |m: String| format!("depth image {}: {m}", job.path.display());
+    let mut warnings = Vec::new();
+    let size = depth_input::check_image_size(&job.k, width, height, job.expected, &job.source)
+        .map_err(|e| CliError::input(at(e.to_string())))?;
+    warnings.extend(size);
+    let (mm, summary) = depth_input::to_mm(DepthValues::U16(&raw), &job.depth);
+    warnings.extend(summary.warning());
+    for w in &warnings {
+        crate::error::warn(&at(w.clone()));
+    }
     Ok(Depth {
-        path: path.to_path_buf(),
         width,
         height,
         mm,
+        warnings,
+    })
+}
+
+/// The depth parameters of an image: the core's defaults, overlaid with the camera file's
+/// `depth_scale` (if it has one, with its name), overlaid with `--depth-scale`.
+pub fn depth_params(
+    camera: Option<(f64, &str)>,
+    flag: Option<f64>,
+) -> CliResult<Valid<DepthParams>> {
+    let mut p = DepthParams::default();
+    if let Some((s, source)) = camera {
+        p.overlay(&json!({ "depth_scale": s }), source)?;
+    }
+    if let Some(s) = flag {
+        p.overlay(&json!({ "depth_scale": s }), crate::commands::FLAGS)?;
+    }
+    p.check().map_err(|e| {
+        CliError::param(format!(
+            "{e} (--depth-scale, or the camera file's depth_scale)"
+        ))
     })
 }
 
@@ -76,10 +111,10 @@ pub fn read_json(
 /// A camera file: BOP `scene_camera.json` (per image id: `cam_K`, `depth_scale`) or BOP
 /// `camera.json` (one camera: `fx, fy, cx, cy, width, height, depth_scale`).
 pub enum CameraFile {
-    /// Per image id: intrinsics and depth scale.
-    Scene(PathBuf, std::collections::BTreeMap<u64, (Intrinsics, f64)>),
-    /// One camera for every image: intrinsics, image size, depth scale.
-    Single(Intrinsics, Option<(usize, usize)>, f64),
+    /// Per image id: intrinsics and depth scale (if the file gives one).
+    Scene(PathBuf, BTreeMap<u64, (Intrinsics, Option<f64>)>),
+    /// One camera for every image: intrinsics, image size, depth scale (if given).
+    Single(Intrinsics, Option<(usize, usize)>, Option<f64>),
 }
 
 impl CameraFile {
@@ -109,13 +144,10 @@ impl CameraFile {
                 (Some(w), Some(h)) => Some((w as usize, h as usize)),
                 _ => None,
             };
-            let scale = obj
-                .get("depth_scale")
-                .and_then(|x| x.as_f64())
-                .unwrap_or(1.0);
+            let scale = obj.get("depth_scale").and_then(|x| x.as_f64());
             return Ok(CameraFile::Single(k, size, scale));
         }
-        let mut map = std::collections::BTreeMap::new();
+        let mut map = BTreeMap::new();
         for (key, entry) in obj {
             let id: u64 = key
                 .parse()
@@ -137,12 +169,7 @@ impl CameraFile {
                 [km[6], km[7], km[8]],
             ])
             .map_err(|e| bad(format!("entry {key}: {e}")))?;
-            let scale = e.get("depth_scale").and_then(|x| x.as_f64()).unwrap_or(1.0);
-            if !(scale.is_finite() && scale > 0.0) {
-                return Err(bad(format!(
-                    "entry {key}: depth_scale must be > 0, got {scale}"
-                )));
-            }
+            let scale = e.get("depth_scale").and_then(|x| x.as_f64());
             map.insert(id, (k, scale));
         }
         if map.is_empty() {
@@ -157,7 +184,7 @@ impl CameraFile {
     pub fn for_image(
         &self,
         id: Option<u64>,
-    ) -> CliResult<(Intrinsics, Option<(usize, usize)>, f64)> {
+    ) -> CliResult<(Intrinsics, Option<(usize, usize)>, Option<f64>)> {
         match self {
             CameraFile::Single(k, size, scale) => Ok((*k, *size, *scale)),
             CameraFile::Scene(path, map) => {
@@ -208,33 +235,58 @@ pub fn scene_folder(dir: &Path) -> CliResult<(Vec<PathBuf>, PathBuf)> {
     Ok((files, cam))
 }
 
-/// Checks an image against its intrinsics (and an expected size): a principal point outside the
-/// image means the image and the intrinsics do not belong together.
-pub fn check_size(
-    d: &Depth,
-    k: &Intrinsics,
-    expected: Option<(usize, usize)>,
-    source: &str,
-) -> CliResult<()> {
-    if let Some((w, h)) = expected {
-        if (w, h) != (d.width, d.height) {
+/// Scene folders of `dirs`: each a BOP scene folder (it has `scene_camera.json`) or a split
+/// folder whose subfolders are (all of them, sorted).
+pub fn scene_folders(dirs: &[PathBuf]) -> CliResult<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for dir in dirs {
+        if !dir.is_dir() {
+            return Err(CliError::missing(dir, "BOP scene folder"));
+        }
+        if dir.join("scene_camera.json").exists() {
+            out.push(dir.clone());
+            continue;
+        }
+        let rd = std::fs::read_dir(dir).map_err(|e| CliError::io(dir, e))?;
+        let mut scenes: Vec<PathBuf> = rd
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.join("scene_camera.json").exists())
+            .collect();
+        if scenes.is_empty() {
             return Err(CliError::input(format!(
-                "depth image {} is {}x{} (width x height), but {source} says {w}x{h}: wrong-size image",
-                d.path.display(),
-                d.width,
-                d.height
+                "{}: neither a BOP scene folder (no scene_camera.json) nor a split folder of them",
+                dir.display()
             )));
         }
+        scenes.sort();
+        out.extend(scenes);
     }
-    if k.validate_for(d.width, d.height).is_err() {
-        return Err(CliError::input(format!(
-            "depth image {} is {}x{} (width x height), but the principal point ({}, {}) of {source} lies outside it: wrong-size image for these intrinsics",
-            d.path.display(),
-            d.width,
-            d.height,
-            k.cx,
-            k.cy
-        )));
+    Ok(out)
+}
+
+/// Per image id, the obj_ids of a scene's `scene_gt.json` (None when it has none).
+pub fn scene_gt_obj_ids(dir: &Path) -> CliResult<Option<BTreeMap<u64, Vec<u64>>>> {
+    let path = dir.join("scene_gt.json");
+    if !path.exists() {
+        return Ok(None);
     }
-    Ok(())
+    let v = read_json(&path, "scene ground-truth file", CliError::input)?;
+    let bad = || {
+        CliError::input(format!(
+            "scene ground-truth file {}: expected {{image id: [{{\"obj_id\": ...}}, ...]}}",
+            path.display()
+        ))
+    };
+    let mut out = BTreeMap::new();
+    for (key, objs) in v.as_object().ok_or_else(bad)? {
+        let id: u64 = key.parse().map_err(|_| bad())?;
+        let ids = objs
+            .as_array()
+            .ok_or_else(bad)?
+            .iter()
+            .map(|o| o.get("obj_id").and_then(|x| x.as_u64()).ok_or_else(bad))
+            .collect::<CliResult<Vec<u64>>>()?;
+        out.insert(id, ids);
+    }
+    Ok(Some(out))
 }

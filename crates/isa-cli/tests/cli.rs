@@ -129,6 +129,40 @@ fn err_t(a: &[f64], b: [f64; 3]) -> f64 {
     (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
 }
 
+/// `isa predict MODEL PNG -k FX FY CX CY` plus `extra`.
+fn predict_k(model: &str, png: &Path, k: &Intrinsics, extra: &[&str]) -> Output {
+    let kk = [k.fx, k.fy, k.cx, k.cy].map(|v| v.to_string());
+    let mut args = vec!["predict", model, png.to_str().unwrap(), "-k"];
+    args.extend(kk.iter().map(String::as_str));
+    args.extend_from_slice(extra);
+    isa(&args)
+}
+
+/// Asserts `o` exited with `code` and its standard error holds every one of `needles`.
+fn expect_exit(o: &Output, code: i32, needles: &[&str]) {
+    let e = stderr(o);
+    assert_eq!(o.status.code(), Some(code), "{e}");
+    for n in needles {
+        assert!(e.contains(n), "{n:?} not in: {e}");
+    }
+}
+
+/// The numbers of a JSON array.
+fn nums(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+/// The best hypothesis of the first image of a successful `isa predict` (JSON on stdout).
+fn best(o: &Output) -> serde_json::Value {
+    assert!(o.status.success(), "{}", stderr(o));
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    doc["images"][0]["hypotheses"][0].clone()
+}
+
 #[test]
 fn train_inspect_predict_round_trip() {
     let m = model().to_str().unwrap();
@@ -396,81 +430,41 @@ fn corrupt_model_and_trainset_exit_4() {
 #[test]
 fn wrong_images_exit_4_with_reason() {
     let m = model().to_str().unwrap();
+    let k525 = Intrinsics {
+        fx: 525.0,
+        fy: 525.0,
+        cx: 319.5,
+        cy: 239.5,
+    };
     // Too small for the intrinsics (principal point outside the image).
     let small = tmp("tiny.png");
     write_png(&small, 20, 10, vec![1000; 200]);
-    let o = isa(&[
-        "predict",
-        m,
-        small.to_str().unwrap(),
-        "-k",
-        "525",
-        "525",
-        "319.5",
-        "239.5",
-    ]);
-    assert_eq!(o.status.code(), Some(4));
-    let e = stderr(&o);
-    assert!(
-        e.contains("tiny.png") && e.contains("20x10") && e.contains("wrong-size"),
-        "{e}"
-    );
+    let o = predict_k(m, &small, &k525, &[]);
+    expect_exit(&o, 4, &["tiny.png", "20x10", "wrong-size"]);
     // A camera.json that names the size.
     let cam = tmp("camera.json");
     std::fs::write(&cam, r#"{"fx": 200, "fy": 200, "cx": 79.5, "cy": 59.5, "width": 160, "height": 120, "depth_scale": 1}"#)
         .unwrap();
     let wide = tmp("wide.png");
     write_png(&wide, 200, 120, vec![1000; 200 * 120]);
-    let o = isa(&[
-        "predict",
-        m,
-        wide.to_str().unwrap(),
-        "-c",
-        cam.to_str().unwrap(),
-    ]);
-    assert_eq!(o.status.code(), Some(4));
-    let e = stderr(&o);
-    assert!(
-        e.contains("wide.png") && e.contains("200x120") && e.contains("160x120"),
-        "{e}"
-    );
-    // 8-bit PNG.
+    let o = isa(&["predict", m, wide.to_str().unwrap(), "-c", cam.to_str().unwrap()]);
+    expect_exit(&o, 4, &["wide.png", "200x120", "160x120"]);
+    // 8-bit PNG; not an image at all.
+    let k20 = Intrinsics {
+        fx: 20.0,
+        fy: 20.0,
+        cx: 7.5,
+        cy: 7.5,
+    };
     let eight = tmp("eight.png");
     image::GrayImage::from_raw(16, 16, vec![7u8; 256])
         .unwrap()
         .save(&eight)
         .unwrap();
-    let o = isa(&[
-        "predict",
-        m,
-        eight.to_str().unwrap(),
-        "-k",
-        "20",
-        "20",
-        "7.5",
-        "7.5",
-    ]);
-    assert_eq!(o.status.code(), Some(4));
-    assert!(
-        stderr(&o).contains("eight.png") && stderr(&o).contains("16-bit"),
-        "{}",
-        stderr(&o)
-    );
-    // Not an image at all.
+    expect_exit(&predict_k(m, &eight, &k20, &[]), 4, &["eight.png", "16-bit"]);
     let txt = tmp("notimage.png");
     std::fs::write(&txt, "hello").unwrap();
-    let o = isa(&[
-        "predict",
-        m,
-        txt.to_str().unwrap(),
-        "-k",
-        "20",
-        "20",
-        "7.5",
-        "7.5",
-    ]);
-    assert_eq!(o.status.code(), Some(4));
-    assert!(stderr(&o).contains("notimage.png"), "{}", stderr(&o));
+    expect_exit(&predict_k(m, &txt, &k20, &[]), 4, &["notimage.png"]);
 }
 
 #[test]
@@ -478,75 +472,24 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     let m = model().to_str().unwrap();
     let png = tmp("plain.png");
     write_png(&png, 160, 120, vec![1000; 160 * 120]);
-    let o = isa(&[
-        "predict",
-        m,
-        png.to_str().unwrap(),
-        "-k",
-        "200",
-        "200",
-        "79.5",
-        "59.5",
-        "--stride",
-        "0",
-    ]);
-    assert_eq!(o.status.code(), Some(5));
-    assert!(stderr(&o).contains("stride"), "{}", stderr(&o));
-    let o = isa(&[
-        "predict",
-        m,
-        png.to_str().unwrap(),
-        "-k",
-        "0",
-        "200",
-        "79.5",
-        "59.5",
-    ]);
-    assert_eq!(o.status.code(), Some(5));
-    assert!(stderr(&o).contains("intrinsics"), "{}", stderr(&o));
+    expect_exit(&predict_k(m, &png, &K, &["--stride", "0"]), 5, &["stride"]);
+    let k0 = Intrinsics { fx: 0.0, ..K };
+    expect_exit(&predict_k(m, &png, &k0, &[]), 5, &["intrinsics"]);
     let params = tmp("params.json");
     std::fs::write(&params, r#"{"vote": {"bandwith": 1}}"#).unwrap();
-    let o = isa(&[
-        "predict",
-        m,
-        png.to_str().unwrap(),
-        "-k",
-        "200",
-        "200",
-        "79.5",
-        "59.5",
-        "--params",
-        params.to_str().unwrap(),
-    ]);
-    assert_eq!(o.status.code(), Some(5));
-    assert!(stderr(&o).contains("bandwith"), "{}", stderr(&o));
+    let o = predict_k(m, &png, &K, &["--params", params.to_str().unwrap()]);
+    expect_exit(&o, 5, &["bandwith"]);
+    expect_exit(&predict_k(m, &png, &K, &["--depth-scale", "0"]), 5, &["depth_scale"]);
     let ts = tmp("q2.isat");
     write_trainset(&ts, "{}");
-    let o = isa(&[
-        "train",
-        ts.to_str().unwrap(),
-        "-o",
-        tmp("never.isaf").to_str().unwrap(),
-        "--quality",
-        "Q1+Q2",
-    ]);
-    assert_eq!(o.status.code(), Some(5));
-    assert!(stderr(&o).contains("link angles"), "{}", stderr(&o));
-    let o = isa(&[
-        "train",
-        ts.to_str().unwrap(),
-        "-o",
-        tmp("never.isaf").to_str().unwrap(),
-        "--quality",
-        "Q7",
-    ]);
-    assert_eq!(o.status.code(), Some(5));
-    assert!(stderr(&o).contains("quality"), "{}", stderr(&o));
-    let o = isa(&["predict"]);
-    assert_eq!(o.status.code(), Some(2));
-    let o = isa(&["predict", m]);
-    assert_eq!(o.status.code(), Some(5));
-    assert!(stderr(&o).contains("PNG"), "{}", stderr(&o));
+    let never = tmp("never.isaf");
+    for (quality, says) in [("Q1+Q2", "link angles"), ("Q7", "quality")] {
+        let (ts, never) = (ts.to_str().unwrap(), never.to_str().unwrap());
+        let o = isa(&["train", ts, "-o", never, "--quality", quality]);
+        expect_exit(&o, 5, &[says]);
+    }
+    expect_exit(&isa(&["predict"]), 2, &[]);
+    expect_exit(&isa(&["predict", m]), 5, &["PNG"]);
 }
 
 /// Issue 20: `isa inspect model | head` panicked on the closed pipe (exit 101).
@@ -782,4 +725,155 @@ fn detect_errors_name_their_cause() {
     let o = run(&["--model", &m, "--params", params.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
     assert!(stderr(&o).contains("verify.lateral"), "{}", stderr(&o));
+}
+
+/// Issue 19: depth in other units with --depth-scale (flag over the camera file), and the
+/// wrong-scale and transposed cases: a warning or an error, never a silently wrong pose.
+#[test]
+fn depth_scales_and_transposed_images_warn_or_fail() {
+    let m = model().to_str().unwrap();
+    let (depth, k, _, t) = test_view(5);
+    let best_t = |o: &Output| nums(&best(o)["t"]);
+    // TUM's 5000 per metre: 5 units per millimetre.
+    let tum = tmp("tum.png");
+    write_png(&tum, 320, 240, depth.iter().map(|&d| d * 5).collect());
+    let o = predict_k(m, &tum, &k, &["--stride", "2", "--depth-scale", "0.2"]);
+    assert!(err_t(&best_t(&o), t) < 0.03 && !stderr(&o).contains("warning"), "{}", stderr(&o));
+    // Without the scale: the pose is 5x too far, and the warning says why.
+    let o = predict_k(m, &tum, &k, &["--stride", "2"]);
+    let e = stderr(&o);
+    assert!(e.contains("isa: warning: depth image") && e.contains("tum.png") && e.contains("depth_scale"), "{e}");
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(doc["images"][0]["warnings"][0].as_str().unwrap().contains("median 12."), "{doc}");
+    // A camera file's depth_scale is used; --depth-scale overrides it.
+    let cam = tmp("tum-camera.json");
+    std::fs::write(&cam, format!(r#"{{"fx": {}, "fy": {}, "cx": {}, "cy": {}, "width": 320, "height": 240, "depth_scale": 0.2}}"#, k.fx, k.fy, k.cx, k.cy)).unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec!["predict", m, tum.to_str().unwrap(), "-c", cam.to_str().unwrap(), "--stride", "2"];
+        args.extend_from_slice(extra);
+        isa(&args)
+    };
+    assert!(err_t(&best_t(&run(&[])), t) < 0.03);
+    let o = run(&["--depth-scale", "1"]);
+    assert!(stderr(&o).contains("depth_scale 1 mm per unit (given)"), "{}", stderr(&o));
+    // Transposed: an error when the camera states the size, a warning when it cannot.
+    let mut tr = vec![0u16; 320 * 240];
+    for v in 0..240 {
+        for u in 0..320 {
+            tr[u * 240 + v] = depth[v * 320 + u];
+        }
+    }
+    let trp = tmp("transposed.png");
+    write_png(&trp, 240, 320, tr);
+    let o = isa(&["predict", m, trp.to_str().unwrap(), "-c", cam.to_str().unwrap()]);
+    expect_exit(&o, 4, &["transposed.png", "transposed"]);
+    let o = predict_k(m, &trp, &k, &[]);
+    expect_exit(&o, 0, &["transposed.png", "transposed"]);
+}
+
+/// One row of a BOP results file.
+struct BopRow {
+    scene_id: u64,
+    im_id: u64,
+    obj_id: u64,
+    _score: f64,
+    _r: Vec<f64>,
+    t: Vec<f64>,
+    time: f64,
+}
+
+/// bop_toolkit's `inout.load_bop_results` (bop19), as it reads a file: the header skipped on
+/// line 1 only, every other line 7 comma-separated fields (ints, a float, 9 and 3 floats split
+/// on whitespace, a float); and its check that all rows of an image share one time.
+fn load_bop_results(text: &str) -> Vec<BopRow> {
+    let mut out = Vec::new();
+    for (i, line) in text.split_inclusive('\n').enumerate() {
+        if i == 0 && line.contains("scene_id,im_id,obj_id,score,R,t,time") {
+            continue;
+        }
+        let e: Vec<&str> = line.split(',').collect();
+        assert_eq!(e.len(), 7, "line {}: {line:?}", i + 1);
+        let floats = |s: &str| -> Vec<f64> { s.split_whitespace().map(|v| v.trim().parse().unwrap()).collect() };
+        let (r, t) = (floats(e[4]), floats(e[5]));
+        assert_eq!((r.len(), t.len()), (9, 3));
+        let int = |s: &str| -> u64 { s.trim().parse().unwrap() };
+        out.push(BopRow {
+            scene_id: int(e[0]),
+            im_id: int(e[1]),
+            obj_id: int(e[2]),
+            _score: e[3].trim().parse().unwrap(),
+            _r: r,
+            t,
+            time: e[6].trim().parse().unwrap(),
+        });
+    }
+    let mut times = std::collections::HashMap::new();
+    for r in &out {
+        let t0: f64 = *times.entry((r.scene_id, r.im_id)).or_insert(r.time);
+        assert!((t0 - r.time).abs() <= 0.001, "image {:?}: times differ", (r.scene_id, r.im_id));
+    }
+    out
+}
+
+/// Issue 19: a whole split in one results file (one header), named `METHOD_DATASET-SPLIT.csv`
+/// when -o is a folder, obj_id from each image's scene_gt.json, read as bop_toolkit reads it.
+#[test]
+fn a_bop_split_to_one_results_file_bop_toolkit_reads() {
+    let m = model().to_str().unwrap();
+    let split = tmp("bopds").join("test");
+    let mut truth = Vec::new();
+    for (scene_id, view, obj) in [(1u64, 2usize, 3u64), (2, 8, 4)] {
+        let dir = split.join(format!("{scene_id:06}"));
+        std::fs::create_dir_all(dir.join("depth")).unwrap();
+        let (depth, k, _, t) = test_view(view);
+        write_png(&dir.join("depth").join("000000.png"), 320, 240, depth);
+        let cam = serde_json::json!({"0": {"cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0], "depth_scale": 1.0}});
+        std::fs::write(dir.join("scene_camera.json"), cam.to_string()).unwrap();
+        let gt = serde_json::json!({"0": [{"obj_id": obj, "cam_R_m2c": [1,0,0,0,1,0,0,0,1], "cam_t_m2c": [0,0,0]}]});
+        std::fs::write(dir.join("scene_gt.json"), gt.to_string()).unwrap();
+        truth.push((scene_id, obj, t));
+    }
+    let out = tmp("bop-out");
+    std::fs::create_dir_all(&out).unwrap();
+    let (s, o) = (split.to_str().unwrap(), out.to_str().unwrap());
+    let run = isa(&["predict", m, "--scene", s, "--format", "bop", "-o", o, "--stride", "2", "-q"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let text = std::fs::read_to_string(out.join("isa_bopds-test.csv")).unwrap();
+    assert_eq!(text.matches("scene_id").count(), 1, "{text}");
+    let rows = load_bop_results(&text);
+    for (scene_id, obj, t) in truth {
+        let first = rows.iter().find(|r| r.scene_id == scene_id).expect("rows of every scene");
+        assert_eq!((first.im_id, first.obj_id), (0, obj));
+        let tm: Vec<f64> = first.t.iter().map(|v| v / 1000.0).collect();
+        assert!(err_t(&tm, t) < 0.03, "scene {scene_id}: {tm:?} vs {t:?}");
+    }
+    // No obj_id anywhere (no scene_gt.json, no metadata, no flag): an error, not obj_id 1.
+    for d in ["000001", "000002"] {
+        std::fs::remove_file(split.join(d).join("scene_gt.json")).unwrap();
+    }
+    let run = isa(&["predict", m, "--scene", s, "--format", "bop", "-q"]);
+    expect_exit(&run, 5, &["obj_id", "--obj-id"]);
+    // A file name bop_toolkit would not parse: written, with a warning naming the pattern.
+    let f = out.join("results.csv");
+    let run = isa(&["predict", m, "--scene", s, "--format", "bop", "--obj-id", "9", "-o", f.to_str().unwrap(), "-q"]);
+    expect_exit(&run, 0, &["METHOD_DATASET-SPLIT.csv"]);
+    assert!(load_bop_results(&std::fs::read_to_string(&f).unwrap()).iter().all(|r| r.obj_id == 9));
+}
+
+/// Issue 19: the JSON gives the pose also as one 4x4 matrix.
+#[test]
+fn json_poses_carry_the_4x4_matrix() {
+    let m = model().to_str().unwrap();
+    let (depth, k, _, _) = test_view(5);
+    let png = tmp("pose-view5.png");
+    write_png(&png, 320, 240, depth);
+    let h = best(&predict_k(m, &png, &k, &["--stride", "2"]));
+    let rows: Vec<Vec<f64>> = h["pose"].as_array().unwrap().iter().map(nums).collect();
+    let r: Vec<Vec<f64>> = h["R"].as_array().unwrap().iter().map(nums).collect();
+    let t = nums(&h["t"]);
+    for i in 0..3 {
+        assert_eq!(rows[i][..3], r[i][..]);
+        assert_eq!(rows[i][3], t[i]);
+    }
+    assert_eq!(rows[3], vec![0.0, 0.0, 0.0, 1.0]);
 }

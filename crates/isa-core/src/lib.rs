@@ -10,6 +10,8 @@
 //! * training: [`criterion`] (Q1/Q2/Q3, Eq. 9-11), [`splitter`] (split search: binning,
 //!   accumulation, the search loop), [`tree`] (builder, leaf votes), [`forest`] (training, the
 //!   traversal API, and `forest::flat`: the fast inference traversal kept with the forest);
+//! * depth input: [`depth_input`] (stored values to millimetres or metres by `depth_scale`, the
+//!   checks of scale and image size, point clouds to depth images);
 //! * inference: [`vote`] (whole-image voting in `vote::predict`, then mode finding: grid,
 //!   gather, position modes, NMS, rotation modes);
 //! * scenes: [`scene`] (every category model over one room frame: gravity, planes, votes,
@@ -23,6 +25,7 @@
 pub mod atomic;
 pub mod criterion;
 pub mod depth;
+pub mod depth_input;
 pub mod error;
 pub mod features;
 pub mod forest;
@@ -45,7 +48,9 @@ pub use error::{IsaError, Result};
 pub use features::{Feature, BACKGROUND_MM};
 pub use forest::{Forest, PartVote, TrainingSet};
 pub use metadata::ModelMetadata;
-pub use params::{DetectParams, ForestParams, PredictParams, Quality, Valid, VoteParams};
+pub use params::{
+    DepthParams, DetectParams, ForestParams, PredictParams, Quality, Valid, VoteParams,
+};
 pub use tree::{Tree, Vote};
 
 /// Version of this crate, written into every model file.

@@ -22,7 +22,11 @@ pub const UNIT_NORM_TOLERANCE: f32 = 1e-3;
 /// Whether `q` (4 finite-or-not values) is a unit quaternion within [`UNIT_NORM_TOLERANCE`]
 /// (in `f64`, so huge components cannot overflow the check).
 pub fn is_unit(q: &[f32]) -> bool {
-    let n = q.iter().map(|&v| f64::from(v) * f64::from(v)).sum::<f64>().sqrt();
+    let n = q
+        .iter()
+        .map(|&v| f64::from(v) * f64::from(v))
+        .sum::<f64>()
+        .sqrt();
     (n - 1.0).abs() <= f64::from(UNIT_NORM_TOLERANCE)
 }
 
@@ -30,6 +34,12 @@ pub fn is_unit(q: &[f32]) -> bool {
 #[inline]
 fn quaternion(q: [f64; 4]) -> Quaternion<f64> {
     Quaternion::new(q[0], q[1], q[2], q[3])
+}
+
+/// The 4x4 homogeneous pose `[[R, t], [0, 0, 0, 1]]` (row-major): `X_cam = T [X_obj; 1]`.
+pub fn pose_matrix(r: &[[f64; 3]; 3], t: &[f64; 3]) -> [[f64; 4]; 4] {
+    let row = |i: usize| [r[i][0], r[i][1], r[i][2], t[i]];
+    [row(0), row(1), row(2), [0.0, 0.0, 0.0, 1.0]]
 }
 
 /// Rotation matrix (row-major) of a quaternion `(w, x, y, z)`; normalises it first.

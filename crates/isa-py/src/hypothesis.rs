@@ -11,9 +11,10 @@ use isa_core::vote::Hypothesis as CoreHypothesis;
 
 use crate::arrays::{rows, vector};
 
-const KEYS: [&str; 7] = [
+const KEYS: [&str; 8] = [
     "R",
     "t",
+    "pose",
     "quaternion",
     "score",
     "support",
@@ -22,7 +23,7 @@ const KEYS: [&str; 7] = [
 ];
 
 /// A pose hypothesis `X_cam = R @ X_obj + t`: `R` (3, 3), `t` (3,) metres (the object-frame
-/// origin in the camera frame), `quaternion` (w, x, y, z), `score` (joint vote density, the
+/// origin in the camera frame), `pose` (4, 4) the same as one matrix, `quaternion` (w, x, y, z), `score` (joint vote density, the
 /// ranking key), `support` (votes in both kernels), `position_score`, `position_support`.
 #[pyclass(name = "Hypothesis", module = "isa._core", frozen)]
 pub struct PyHypothesis {
@@ -40,6 +41,7 @@ impl PyHypothesis {
         Some(match key {
             "R" => rows(py, h.rotation.iter().copied()).into_any(),
             "t" => vector(py, h.translation.to_vec()).into_any(),
+            "pose" => self.pose(py).into_any(),
             "quaternion" => vector(py, h.quaternion.to_vec()).into_any(),
             "score" => h.score.into_pyobject(py).ok()?.into_any(),
             "support" => h.support.into_pyobject(py).ok()?.into_any(),
@@ -61,6 +63,12 @@ impl PyHypothesis {
     #[getter]
     fn t<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         vector(py, self.h.translation.to_vec())
+    }
+    /// The 4x4 pose `[[R, t], [0, 0, 0, 1]]`: `X_cam = pose @ [X_obj, 1]`.
+    #[getter]
+    fn pose<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let m = isa_core::rotation::pose_matrix(&self.h.rotation, &self.h.translation);
+        rows(py, m.iter().copied())
     }
     /// The rotation as a unit quaternion (w, x, y, z), w >= 0.
     #[getter]
@@ -104,7 +112,10 @@ impl PyHypothesis {
         KEYS.len()
     }
     fn __iter__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        PyList::new(py, KEYS)?.into_any().try_iter().map(|i| i.into_any())
+        PyList::new(py, KEYS)?
+            .into_any()
+            .try_iter()
+            .map(|i| i.into_any())
     }
     fn keys(&self) -> Vec<&'static str> {
         KEYS.to_vec()

@@ -3,12 +3,14 @@
 //! core errors to their Python exception classes (`errors`), scalar arguments checked into
 //! `isa` errors (`scalars`). One file per domain: the forest
 //! (`forest`, with `predict` / `image_votes` methods), inference (`predict`, `hypothesis`),
-//! features (`features`), scene detection (`scene`), training-set files (`trainset`), and test hooks in the private
+//! depth input (`depth_input`: `depth_scale`, size checks, warnings, point clouds), features (`features`), scene detection (`scene`), training-set files (`trainset`), the `isa` command line (`cli`, for the console script), and test hooks in the private
 //! submodule `isa._core._testing` (`testing`).
 
 use pyo3::prelude::*;
 
 pub mod arrays;
+pub mod cli;
+pub mod depth_input;
 pub mod errors;
 pub mod features;
 pub mod forest;
@@ -33,6 +35,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(features::sample_parts, m)?)?;
     m.add_function(wrap_pyfunction!(features::depth_features, m)?)?;
     predict::register(m)?;
+    depth_input::register(m)?;
+    cli::register(m)?;
     scene::register(m)?;
     trainset::register(m)?;
     shards::register(m)?;

@@ -63,16 +63,6 @@ pub fn forest_params(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Valid<Fores
     p.check().map_err(to_py)
 }
 
-/// `defaults` overlaid with the inference keyword arguments, checked.
-pub fn predict_params(
-    defaults: &Valid<PredictParams>,
-    kwargs: Option<&Bound<'_, PyDict>>,
-) -> PyResult<Valid<PredictParams>> {
-    defaults
-        .with_overrides(&kwargs_json(kwargs)?, KWARGS)
-        .map_err(to_py)
-}
-
 /// `FOREST_DEFAULTS` and `PREDICT_DEFAULTS` (flat keys): the core's defaults, for Python's
 /// `ForestParams` and documentation.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

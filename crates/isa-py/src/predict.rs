@@ -5,10 +5,10 @@
 //! `isa_core::PredictParams` with the vote keys flat (`stride`, `min_depth`, `max_depth`,
 //! `min_leaf_weight`, `position_bandwidth`, `rotation_bandwidth`, `max_hypotheses`, ...; see
 //! `isa._core.PREDICT_DEFAULTS`), overlaid on the model's inference defaults by the core;
-//! unknown names raise `InvalidParameterError`.
+//! unknown names raise `InvalidParameterError`. `depth_scale` (the core's `DepthParams`) says
+//! how the depth's values map to millimetres (`depth_input`).
 
 use numpy::prelude::*;
-use numpy::PyUntypedArray;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
@@ -16,10 +16,11 @@ use isa_core::vote::{self as core_vote, DepthImage, Intrinsics, PoseVote};
 use isa_core::{PredictParams, Valid, VoteParams};
 
 use crate::arrays::{array, as_slice, check_finite, describe, given, rows, vector};
+use crate::depth_input::{depth_mm, take_depth_params};
 use crate::errors::{input_err, to_py};
 use crate::forest::PyForest;
 use crate::hypothesis;
-use crate::params::{kwargs_json, predict_params, KWARGS};
+use crate::params::{kwargs_json, KWARGS};
 use crate::scalars;
 
 /// Intrinsics from an object with `fx, fy, cx, cy` attributes (e.g. `isa.camera.Intrinsics`),
@@ -52,50 +53,6 @@ pub(crate) fn intrinsics(k: &Bound<'_, PyAny>) -> PyResult<Intrinsics> {
     Ok(i)
 }
 
-/// `(pixels in mm, width, height)` of a 2D depth array: uint16 millimetres, or float32/float64
-/// metres (0, NaN, negative = missing).
-fn depth_mm(depth: &Bound<'_, PyAny>) -> PyResult<(Vec<u16>, usize, usize)> {
-    let arr = depth.cast::<PyUntypedArray>().map_err(|_| {
-        input_err(format!(
-            "depth: expected a 2D uint16 (mm) or float32 (metres) array, got {}",
-            describe(depth)
-        ))
-    })?;
-    if arr.ndim() != 2 {
-        return Err(input_err(format!(
-            "depth: expected a 2D array (height, width), got {}",
-            describe(depth)
-        )));
-    }
-    let (h, w) = (arr.shape()[0], arr.shape()[1]);
-    let dt = arr.dtype();
-    let py = depth.py();
-    let px = if dt.is_equiv_to(&numpy::dtype::<u16>(py)) {
-        array::<u16>(depth, "depth", "uint16", &[None, None])?
-            .as_slice()
-            .map_err(|e| input_err(e.to_string()))?
-            .to_vec()
-    } else if dt.is_equiv_to(&numpy::dtype::<f32>(py)) {
-        let a = array::<f32>(depth, "depth", "float32", &[None, None])?;
-        core_vote::depth_m_to_mm(a.as_slice().map_err(|e| input_err(e.to_string()))?)
-    } else if dt.is_equiv_to(&numpy::dtype::<f64>(py)) {
-        let a = array::<f64>(depth, "depth", "float64", &[None, None])?;
-        let m: Vec<f32> = a
-            .as_slice()
-            .map_err(|e| input_err(e.to_string()))?
-            .iter()
-            .map(|v| *v as f32)
-            .collect();
-        core_vote::depth_m_to_mm(&m)
-    } else {
-        return Err(input_err(format!(
-            "depth: expected uint16 (mm) or float32/float64 (metres), got {}",
-            describe(depth)
-        )));
-    };
-    Ok((px, w, h))
-}
-
 /// The `_core.Forest` behind `obj`: itself, or its `.core` (an `isa.forest.Forest`).
 pub(crate) fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyForest>> {
     if let Ok(f) = obj.cast::<PyForest>() {
@@ -113,14 +70,18 @@ pub(crate) fn core_forest<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, P
 }
 
 /// The call's `n_threads`, else the forest's setting.
-fn threads_of(forest: &Bound<'_, PyForest>, n_threads: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
+fn threads_of(
+    forest: &Bound<'_, PyForest>,
+    n_threads: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Option<usize>> {
     Ok(scalars::n_threads(n_threads)?.or(forest.get().threads()))
 }
 
 /// Converts and checks one whole-image call (threads, the model's inference defaults overlaid by
-/// the keyword arguments, intrinsics, depth in mm) and runs `run` on it without the GIL, on the
-/// forest's current trees (another thread may refit it meanwhile). `Forest.predict` and
-/// `Forest.image_votes` are this with `run` = the core's `predict` / `image_votes`.
+/// the keyword arguments, `depth_scale` taken from them, intrinsics, depth in mm) and runs `run`
+/// on it without the GIL, on the forest's current trees (another thread may refit it
+/// meanwhile). `Forest.predict` and `Forest.image_votes` are this with `run` = the core's
+/// `predict` / `image_votes`.
 pub(crate) fn on_image<'py, T: Send>(
     forest: &Bound<'py, PyForest>,
     depth: &Bound<'py, PyAny>,
@@ -137,9 +98,13 @@ pub(crate) fn on_image<'py, T: Send>(
 ) -> PyResult<T> {
     let threads = threads_of(forest, n_threads)?;
     let f = forest.get().core()?;
-    let params = predict_params(&f.predict_defaults, params)?;
-    let k = intrinsics(k)?;
-    let (px, width, height) = depth_mm(depth)?;
+    let mut kw = kwargs_json(params)?;
+    let depth_params = take_depth_params(&mut kw)?;
+    let params = f
+        .predict_defaults
+        .with_overrides(&kw, KWARGS)
+        .map_err(to_py)?;
+    let (px, width, height, k) = depth_mm(depth, k, &depth_params)?;
     forest
         .py()
         .detach(|| {

@@ -7,7 +7,6 @@
 
 use std::path::PathBuf;
 
-use pyo3::buffer::PyBuffer;
 use pyo3::exceptions::PyOverflowError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyBytes, PyString};
@@ -65,8 +64,13 @@ pub fn bytes(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<u8>> {
         return Ok(b.as_bytes().to_vec());
     }
     if !obj.is_instance_of::<PyString>() {
-        if let Ok(buf) = PyBuffer::<u8>::get(obj) {
-            return buf.to_vec(obj.py());
+        // Through memoryview rather than the buffer API, which the stable ABI (abi3) lacks
+        // before Python 3.11: byte buffers only, as PyBuffer::<u8> accepted.
+        if let Ok(mv) = obj.py().import("builtins")?.getattr("memoryview")?.call1((obj,)) {
+            if mv.getattr("format")?.extract::<String>()? == "B" {
+                let b = mv.call_method0("tobytes")?;
+                return Ok(b.cast::<PyBytes>()?.as_bytes().to_vec());
+            }
         }
     }
     Err(type_err(format!(

@@ -1,4 +1,5 @@
-"""Data in: meshes, ModelNet10, procedural instances, SUN RGB-D frames and the BOP format."""
+"""Data in: meshes, ModelNet10, procedural instances, SUN RGB-D frames, other sensors' depth
+formats (TUM, NYU) and the BOP format."""
 
 from isa._reexport import lazy_reexport
 
@@ -17,6 +18,10 @@ __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
     "sunrgbd": [
         "SceneFrame", "UPRIGHT_FROM_CAMERA_AXES", "read_native", "read_processed", "list_native",
         "list_processed", "iter_processed", "decode_sun_depth", "NON_OBJECT_CLASSES",
+    ],
+    "sensors": [
+        "TUM_UNITS_PER_METRE", "NYU_DISPARITY", "NYU_NO_READING", "NYU_MAX_DEPTH_M", "read_tum_depth",
+        "read_nyu_pgm", "read_nyu_annotated", "read_depth",
     ],
     "bop": [
         "MAX_DEPTH_UNITS", "write_json", "read_json", "depth_to_png", "png_to_depth", "model_info",

@@ -372,7 +372,9 @@ def _read_labels(path: Path) -> tuple[Box3D, ...]:
 
 
 def read_processed(root: str | Path, index: int | str) -> SceneFrame:
-    """Read frame ``index`` (e.g. ``1`` or ``"000001"``) of a processed ``sunrgbd_trainval`` folder.
+    """Read frame ``index`` (e.g. ``1`` or ``"000001"``) of a processed ``sunrgbd_trainval`` folder,
+    or of a folder holding one frame's files side by side (``calib_000005.txt``,
+    ``depth_000005.mat``, ``images_000005.jpg``).
 
     The depth image is rebuilt from the point cloud: each upright point goes back to the camera
     frame (inverse of ``Rtilt``, then axes to OpenCV) and is projected with ``K``; it must land on
@@ -381,7 +383,12 @@ def read_processed(root: str | Path, index: int | str) -> SceneFrame:
     """
     root = Path(root)
     fid = _frame_id(index)
-    calib_path = root / "calib" / f"{fid}.txt"
+    # The trainval layout (calib/000005.txt, depth/000005.mat, ...) or one frame's files side by
+    # side (calib_000005.txt, depth_000005.mat, images_000005.jpg, as in real_unannotated).
+    side_by_side = not (root / "calib").is_dir() and (root / f"calib_{fid}.txt").is_file()
+    where = {k: root / (f"{k if k != 'image' else 'images'}_{fid}.{x}" if side_by_side else f"{k}/{fid}.{x}")
+             for k, x in (("calib", "txt"), ("depth", "mat"), ("image", "jpg"), ("label", "txt"))}
+    calib_path = where["calib"]
     if not calib_path.is_file():
         raise DataError(f"{calib_path}: missing calibration (Rtilt and K) for frame {fid}")
     lines = [ln.split() for ln in calib_path.read_text().splitlines() if ln.strip()]
@@ -395,7 +402,7 @@ def read_processed(root: str | Path, index: int | str) -> SceneFrame:
     _check_rotation(Rtilt, calib_path, "Rtilt")
     R_gravity = Rtilt @ UPRIGHT_FROM_CAMERA_AXES
 
-    mat_path = root / "depth" / f"{fid}.mat"
+    mat_path = where["depth"]
     pts = _read_points(mat_path)[:, :3].astype(np.float64)
     # Invert rather than transpose: the rounded Rtilt is not exactly orthogonal, and the same
     # matrix must be used both ways for the reconstruction to reproduce the cloud.
@@ -411,7 +418,7 @@ def read_processed(root: str | Path, index: int | str) -> SceneFrame:
             f"{mat_path}: points project up to {off.max():.3f} px away from integer pixels with {calib_path.name}: "
             "not a full-frame SUN RGB-D cloud (subsampled or augmented?) or the wrong calibration"
         )
-    width, height = _image_size(root / "image" / f"{fid}.jpg", K, ui, vi)
+    width, height = _image_size(where["image"], K, ui, vi)
     if ui.size and (ui.min() < 0 or vi.min() < 0 or ui.max() >= width or vi.max() >= height):
         raise DataError(f"{mat_path}: points project outside the {width}x{height} image")
     depth = np.zeros((height, width), dtype=np.float32)
@@ -420,7 +427,8 @@ def read_processed(root: str | Path, index: int | str) -> SceneFrame:
         raise DataError(f"{mat_path}: several points project onto the same pixel; not a single depth image")
     depth.reshape(-1)[flat] = cam[:, 2]
     intr = _intrinsics_from_sun_K(K, width, height, calib_path)
-    boxes = _read_labels(root / "label" / f"{fid}.txt")
+    # Unannotated frames (a side-by-side folder without a label file) have no boxes.
+    boxes = () if side_by_side and not where["label"].is_file() else _read_labels(where["label"])
     return SceneFrame(fid, depth, intr, R_gravity, boxes, mat_path)
 
 

@@ -32,12 +32,12 @@ import numpy as np
 from isa import _core, atomic
 from isa.camera import Intrinsics
 from isa.detection.gravity import GravityEstimate
-from isa.detection.planes import PlaneParams, checked_depth
+from isa.detection.planes import PlaneParams
 from isa.detection.refine import RefineParams
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import VerifyParams
 from isa.evaluation.boxes3d import Box3D, box_from_pose
-from isa.exceptions import DataError, InvalidValueError
+from isa.exceptions import DataError
 
 _D = _core.DETECT_DEFAULTS
 
@@ -150,12 +150,20 @@ class SceneDetection:
     support: int
     meta: dict = field(default_factory=dict)
 
+    @property
+    def pose(self) -> np.ndarray:
+        """The 4x4 pose ``[[R, t], [0, 0, 0, 1]]``: ``X_cam = pose @ [X_obj, 1]``."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.R, self.t
+        return T
+
     def box(self, R_gravity: np.ndarray) -> Box3D:
         """The gravity-aligned box in the upright frame."""
         return box_from_pose(self.R, self.t, self.size, -self.box_centre, R_gravity, self.category, self.score)
 
     def to_dict(self) -> dict:
         return {"category": self.category, "R": np.asarray(self.R).tolist(), "t": np.asarray(self.t).tolist(),
+                "pose": self.pose.tolist(),
                 "size": np.asarray(self.size).tolist(), "box_centre": np.asarray(self.box_centre).tolist(),
                 "score": float(self.score), "support": int(self.support),
                 "meta": {k: v for k, v in self.meta.items() if isinstance(v, (int, float, str, bool, type(None)))}}
@@ -179,15 +187,6 @@ def nms_across(boxes: Sequence[Box3D], iou: float = _D["nms_iou"], overlap: floa
     the bed). Returns the kept indices, best first (``isa._core.nms_across``)."""
     rows = np.array([[*b.centre, *b.size, b.yaw, b.score] for b in boxes], dtype=float).reshape(-1, 8)
     return list(_core.nms_across(rows, iou, overlap))
-
-
-def _to_metres(depth: np.ndarray) -> np.ndarray:
-    depth = np.asarray(depth)
-    if depth.ndim != 2:
-        raise InvalidValueError(f"detect: depth must be (H, W), got {depth.shape}")
-    if depth.dtype == np.uint16:
-        return depth.astype(np.float32) / 1000.0
-    return np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def _models(models) -> list[CategoryModel]:
@@ -220,14 +219,18 @@ def _size_range(m: CategoryModel):
 
 
 def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarray | None = None,
-           params: DetectParams = DetectParams()) -> DetectResult:
+           params: DetectParams = DetectParams(), depth_scale: float | None = None) -> DetectResult:
     """Every category of ``models`` in one depth frame, one ranked list (module docstring).
 
-    ``depth`` (H, W) float metres or uint16 mm (0 = missing); ``models``: a mapping category ->
-    model path / :class:`isa.forest.model.Forest` / :class:`CategoryModel`, or a sequence of
+    ``depth`` (H, W) float metres or uint16 mm (0 = missing), or an organised point cloud
+    (H, W, 3); ``depth_scale`` millimetres per stored unit otherwise (as :meth:`Forest.predict
+    <isa.forest.model.Forest.predict>`: TUM's 5000 per metre is 0.2, float millimetres 1). The
+    size must match ``intrinsics`` (a transposed image is an error); an implausible depth range
+    raises :class:`isa.InputWarning`. ``models``: a mapping category -> model path /
+    :class:`isa.forest.model.Forest` / :class:`CategoryModel`, or a sequence of
     :class:`CategoryModel`; ``gravity`` the camera -> upright rotation when known.
     """
-    depth = checked_depth(_to_metres(depth), intrinsics, "detect")
+    depth = _core.depth_to_metres(depth, intrinsics, depth_scale)
     ms = _models(models)
     g = None if gravity is None else np.asarray(gravity, dtype=float).reshape(3, 3)
     specs = [{"category": m.category, "forest": m.forest, "size": m.box.size, "ssc_offset": m.box.ssc_offset,

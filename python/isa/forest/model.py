@@ -230,12 +230,18 @@ class Forest:
     def predict(self, depth: np.ndarray, intrinsics: Any, **params: Any) -> list[_core.Hypothesis]:
         """Ranked 6D hypotheses of the objects in a whole depth image (paper Eq. 12-13).
 
-        ``depth``: (H, W) uint16 millimetres or float metres (0 = missing); ``intrinsics``: an
-        ``isa.camera.Intrinsics``, a 3x3 matrix or (fx, fy, cx, cy). Inference parameters not given
+        ``depth``: (H, W) uint16 millimetres or float metres (0 = missing), or an organised point
+        cloud (H, W, 3) in the camera frame (an unorganised one: :func:`isa.camera.depth_from_points`);
+        ``depth_scale=`` millimetres per stored unit when the values are in another unit (TUM's
+        5000 per metre: 0.2; float millimetres: 1; see ``isa_core::params::DepthParams``).
+        ``intrinsics``: an ``isa.camera.Intrinsics`` (its image size is checked against the
+        depth's: a transposed image is an error), a 3x3 matrix or (fx, fy, cx, cy). A median depth
+        implausible for a depth sensor (outside 0.15-10 m after scaling) or an image that looks
+        transposed against the principal point raises :class:`isa.InputWarning`. Inference parameters not given
         come from the model's :attr:`predict_defaults` (size-aware ones the pipeline stores; the
         core's ``isa._core.PREDICT_DEFAULTS`` otherwise). Each :class:`isa._core.Hypothesis`:
         ``R`` (3, 3), ``t`` (3,) metres (the object-frame origin, SSC or centre of mass, in the
-        camera frame), ``quaternion``, ``score``, ``support``; also readable as ``h["R"]``."""
+        camera frame), ``pose`` (4, 4) the two as one matrix, ``quaternion``, ``score``, ``support``; also readable as ``h["R"]``."""
         return self._core.predict(depth, intrinsics, **params)
 
     def image_votes(self, depth: np.ndarray, intrinsics: Any, **params: Any) -> dict[str, Any]:

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use serde_json::{json, Value};
 
+use isa_core::rotation::pose_matrix;
 use isa_core::scene::gravity::rotation_from_up;
 use isa_core::scene::{self, Camera, DetectOutput, SceneModel, ShapeLibrary};
 use isa_core::{DetectParams, Forest, Valid};
@@ -23,6 +24,15 @@ struct Model {
     path: PathBuf,
     forest: Forest,
     shapes: Option<(ShapeLibrary, PathBuf)>,
+}
+
+/// One image's detections, with its job, the core's warnings about it and its time.
+struct FrameResult {
+    job: ImageJob,
+    warnings: Vec<String>,
+    cam: Camera,
+    out: DetectOutput,
+    secs: f64,
 }
 
 fn params(sources: &[(Value, String)]) -> CliResult<Valid<DetectParams>> {
@@ -78,7 +88,9 @@ fn load_models(a: &DetectArgs) -> CliResult<Vec<Model>> {
 fn gravity(a: &DetectArgs) -> CliResult<Option<nalgebra::Matrix3<f64>>> {
     let Some(g) = &a.gravity else { return Ok(None) };
     let &[x, y, z] = g.as_slice() else {
-        return Err(CliError::param(format!("--gravity: expected GX,GY,GZ (3 numbers), got {g:?}")));
+        return Err(CliError::param(format!(
+            "--gravity: expected GX,GY,GZ (3 numbers), got {g:?}"
+        )));
     };
     let v = nalgebra::Vector3::new(x, y, z);
     if !(v.iter().all(|x| x.is_finite()) && v.norm() > 1e-9) {
@@ -106,7 +118,7 @@ fn obj_ids(a: &DetectArgs, models: &[Model]) -> CliResult<Vec<u64>> {
 
 fn detection_json(d: &scene::Detection) -> Value {
     json!({
-        "category": d.category, "R": d.r, "t": d.t, "size": d.size, "box_centre": d.box_centre,
+        "category": d.category, "R": d.r, "t": d.t, "pose": pose_matrix(&d.r, &d.t), "size": d.size, "box_centre": d.box_centre,
         "score": d.score, "support": d.support, "forest_score": d.forest_score, "shape": d.shape,
         "refined": d.refined,
     })
@@ -115,11 +127,11 @@ fn detection_json(d: &scene::Detection) -> Value {
 fn to_json(
     models: &[Model],
     params: &DetectParams,
-    results: &[(ImageJob, Camera, DetectOutput, f64)],
+    results: &[FrameResult],
 ) -> String {
     let images: Vec<Value> = results
         .iter()
-        .map(|(job, cam, out, secs)| {
+        .map(|FrameResult { job, warnings, cam, out, secs }| {
             json!({
                 "depth": job.path.display().to_string(),
                 "image_id": job.id,
@@ -130,6 +142,7 @@ fn to_json(
                 "gravity_source": out.gravity_source.name(),
                 "floor_height": out.floor_height,
                 "seconds": secs,
+                "warnings": warnings,
                 "stages": out.seconds.iter().map(|(k, v)| (k.to_string(), json!(v))).collect::<serde_json::Map<_, _>>(),
                 "detections": out.detections.iter().map(detection_json).collect::<Vec<_>>(),
             })
@@ -141,42 +154,35 @@ fn to_json(
             "category": m.category, "model": m.path.display().to_string(),
             "shapes": m.shapes.as_ref().map(|s| s.1.display().to_string()),
         })).collect::<Vec<_>>(),
-        "units": {"t": "metres, camera frame (OpenCV), X_cam = R X_obj + t", "R": "row-major",
-                  "size": "metres, along the object's x, y, z", "gravity": "camera -> upright (z up)"},
+        "units": units(),
         "params": params,
         "images": images,
     });
     serde_json::to_string_pretty(&doc).expect("serialise") + "\n"
 }
 
+fn units() -> Value {
+    let mut u = output::UNITS.clone();
+    u["size"] = json!("metres, along the object's x, y, z");
+    u["gravity"] = json!("camera -> upright (z up)");
+    u
+}
+
 fn to_bop(
     models: &[Model],
     ids: &[u64],
     scene_id: u64,
-    results: &[(ImageJob, Camera, DetectOutput, f64)],
+    results: &[FrameResult],
 ) -> CliResult<String> {
-    let mut s = String::from("scene_id,im_id,obj_id,score,R,t,time\n");
-    for (job, _, out, secs) in results {
-        let im_id = job.id.ok_or_else(|| {
-            CliError::param(format!(
-                "--format bop needs an image id: name {} by its id (000012.png) or pass --image-id",
-                job.path.display()
-            ))
-        })?;
+    let mut s = String::from(output::BOP_HEADER);
+    for FrameResult { job, out, secs, .. } in results {
+        let im_id = output::bop_image_id(job)?;
         for d in &out.detections {
             let k = models
                 .iter()
                 .position(|m| m.category == d.category)
                 .expect("a model's category");
-            let r: Vec<String> = d.r.iter().flatten().map(|v| format!("{v:.8}")).collect();
-            let t: Vec<String> = d.t.iter().map(|v| format!("{:.4}", v * 1000.0)).collect();
-            s.push_str(&format!(
-                "{scene_id},{im_id},{},{:.6},{},{},{secs:.6}\n",
-                ids[k],
-                d.score,
-                r.join(" "),
-                t.join(" ")
-            ));
+            s += &output::bop_row([scene_id, im_id, ids[k]], d.score, &d.r, &d.t, *secs);
         }
     }
     Ok(s)
@@ -187,13 +193,8 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
     sources.push((flags_json(&a.flags), FLAGS.to_string()));
     let params = params(&sources)?; // bad flags or parameter files fail before a model is read
     let g = gravity(&a)?;
-    let jobs = image_jobs(
-        &a.depth,
-        a.camera.as_deref(),
-        a.intrinsics.as_deref(),
-        a.image_id,
-    )?;
-    let pb = spinner(a.quiet, format!("loading {} models", a.models.len()));
+    let jobs = image_jobs(&a.depth, &a.camera)?;
+    let pb = spinner(a.run.quiet, format!("loading {} models", a.models.len()));
     let models = load_models(&a)?;
     pb.finish_and_clear();
     let ids = obj_ids(&a, &models)?;
@@ -209,19 +210,24 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
             .map_err(|e| CliError::input(e.to_string()))
         })
         .collect::<CliResult<Vec<_>>>()?;
-    let pb = bar(a.quiet || jobs.len() < 2, jobs.len() as u64, "detecting");
+    let pb = bar(a.run.quiet || jobs.len() < 2, jobs.len() as u64, "detecting");
     let mut results = Vec::with_capacity(jobs.len());
     for job in jobs {
-        let d = inputs::read_depth_png(&job.path, job.scale)?;
-        inputs::check_size(&d, &job.k, job.expected, &job.source)?;
+        let d = inputs::read_depth(&job)?;
         let metres: Vec<f32> = d.mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
         let cam = Camera::new(job.k, d.width, d.height)?;
         let t0 = std::time::Instant::now();
-        let out = with_threads(a.threads, || {
+        let out = with_threads(a.run.threads, || {
             scene::detect(&metres, cam, &scene_models, g, None, &params)
         })??;
         let secs = t0.elapsed().as_secs_f64();
-        results.push((job, cam, out, secs));
+        results.push(FrameResult {
+            job,
+            warnings: d.warnings,
+            cam,
+            out,
+            secs,
+        });
         pb.inc(1);
     }
     pb.finish_and_clear();

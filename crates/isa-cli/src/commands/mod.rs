@@ -30,9 +30,13 @@ pub fn params_file(path: Option<&Path>) -> CliResult<Option<(Value, String)>> {
     .transpose()
 }
 
-/// The given flags (a struct of `Option`s skipping `None`) as a JSON object.
+/// The given flags (a struct of `Option`s; `None`, a flag not given, dropped) as a JSON object.
 pub fn flags_json(flags: &impl Serialize) -> Value {
-    serde_json::to_value(flags).expect("flags serialise")
+    let mut v = serde_json::to_value(flags).expect("flags serialise");
+    if let Some(o) = v.as_object_mut() {
+        o.retain(|_, x| !x.is_null());
+    }
+    v
 }
 
 pub fn load_model(path: &Path) -> CliResult<Forest> {

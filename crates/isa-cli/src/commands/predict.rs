@@ -1,29 +1,33 @@
-//! `isa predict`: depth PNGs (or a BOP scene folder) and their intrinsics, the model's inference
+//! `isa predict`: depth PNGs (or BOP scene or split folders) and their intrinsics, the model's inference
 //! defaults overlaid by `--params` and the flags (the core's overlay), ranked hypotheses out.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use serde_json::Value;
 
 use isa_core::vote::{self, DepthImage, Intrinsics};
-use isa_core::{PredictParams, Valid};
+use isa_core::{DepthParams, PredictParams, Valid};
 
 use super::{flags_json, load_model, params_file, FLAGS};
-use crate::args::PredictArgs;
+use crate::args::{CameraArgs, PredictArgs};
 use crate::error::{CliError, CliResult};
 use crate::inputs;
 use crate::output::{self, ImageResult};
 use crate::progress::{bar, spinner, with_threads};
 
-/// One depth image to run, with its camera.
+/// One depth image to run, with its camera and depth parameters.
 pub struct ImageJob {
     pub path: PathBuf,
     pub id: Option<u64>,
+    /// BOP scene id (from `--scene-id`, else the scene folder's name).
+    pub scene_id: Option<u64>,
     pub k: Intrinsics,
     pub expected: Option<(usize, usize)>,
-    pub scale: f64,
+    pub depth: Valid<DepthParams>,
     pub source: String,
+    /// The obj_ids of the image's ground truth (a scene's `scene_gt.json`), if known.
+    pub gt_obj_ids: Option<Vec<u64>>,
 }
 
 /// `base` overlaid with the parameter file and the flags, checked.
@@ -49,27 +53,36 @@ fn flag_of(msg: &str) -> String {
     field.replace('_', "-")
 }
 
-fn jobs(a: &PredictArgs) -> CliResult<(Vec<ImageJob>, Option<u64>)> {
-    if let Some(dir) = &a.scene {
-        let (files, cam_path) = inputs::scene_folder(dir)?;
-        let cam = inputs::CameraFile::read(&cam_path)?;
-        let scene_id = a
-            .scene_id
-            .or_else(|| dir.file_name()?.to_str()?.parse().ok());
+fn jobs(a: &PredictArgs) -> CliResult<Vec<ImageJob>> {
+    if !a.scene.is_empty() {
         let mut out = Vec::new();
-        for f in files {
-            let id = inputs::id_from_stem(&f);
-            let (k, expected, scale) = cam.for_image(id)?;
-            out.push(ImageJob {
-                path: f,
-                id,
-                k,
-                expected,
-                scale,
-                source: cam_path.display().to_string(),
-            });
+        for dir in inputs::scene_folders(&a.scene)? {
+            let (files, cam_path) = inputs::scene_folder(&dir)?;
+            let cam = inputs::CameraFile::read(&cam_path)?;
+            let gt = inputs::scene_gt_obj_ids(&dir)?;
+            let scene_id = a
+                .scene_id
+                .or_else(|| dir.file_name()?.to_str()?.parse().ok());
+            let source = cam_path.display().to_string();
+            for f in files {
+                let id = inputs::id_from_stem(&f);
+                let (k, expected, scale) = cam.for_image(id)?;
+                out.push(ImageJob {
+                    path: f,
+                    id,
+                    scene_id,
+                    k,
+                    expected,
+                    depth: inputs::depth_params(
+                        scale.map(|s| (s, source.as_str())),
+                        a.camera.depth_scale,
+                    )?,
+                    source: source.clone(),
+                    gt_obj_ids: gt.as_ref().and_then(|g| g.get(&id?).cloned()),
+                });
+            }
         }
-        return Ok((out, scene_id));
+        return Ok(out);
     }
     if a.depth.is_empty() {
         return Err(CliError::param(
@@ -77,29 +90,27 @@ fn jobs(a: &PredictArgs) -> CliResult<(Vec<ImageJob>, Option<u64>)> {
                 .into(),
         ));
     }
-    Ok((
-        image_jobs(&a.depth, a.camera.as_deref(), a.intrinsics.as_deref(), a.image_id)?,
-        a.scene_id,
-    ))
+    let mut out = image_jobs(&a.depth, &a.camera)?;
+    for j in &mut out {
+        j.scene_id = a.scene_id;
+    }
+    Ok(out)
 }
 
-/// The jobs of depth PNGs with their intrinsics from `camera` (a BOP camera file) or
-/// `intrinsics` (FX FY CX CY); `image_id` names a single image (else the file names do).
-pub fn image_jobs(
-    depth: &[PathBuf],
-    camera: Option<&Path>,
-    intrinsics: Option<&[f64]>,
-    image_id: Option<u64>,
-) -> CliResult<Vec<ImageJob>> {
+/// The jobs of depth PNGs with their camera: a BOP camera file or `--intrinsics FX FY CX CY`;
+/// `--image-id` names a single image (else the file names do).
+pub fn image_jobs(depth: &[PathBuf], c: &CameraArgs) -> CliResult<Vec<ImageJob>> {
+    let camera = c.camera.as_deref();
     let cam = camera.map(inputs::CameraFile::read).transpose()?;
     let mut out = Vec::new();
     for f in depth {
-        let id = image_id
+        let id = c
+            .image_id
             .filter(|_| depth.len() == 1)
             .or_else(|| inputs::id_from_stem(f));
-        let (k, expected, scale, source) = match (&cam, intrinsics) {
-            (Some(c), _) => {
-                let (k, e, s) = c.for_image(id)?;
+        let (k, expected, scale, source) = match (&cam, c.intrinsics.as_deref()) {
+            (Some(cf), _) => {
+                let (k, e, s) = cf.for_image(id)?;
                 (k, e, s, camera.unwrap().display().to_string())
             }
             (None, Some(v)) => {
@@ -111,7 +122,7 @@ pub fn image_jobs(
                 };
                 k.validate()
                     .map_err(|e| CliError::param(format!("--intrinsics: {e}")))?;
-                (k, None, 1.0, "--intrinsics".to_string())
+                (k, None, None, "--intrinsics".to_string())
             }
             (None, None) => {
                 return Err(CliError::param(
@@ -122,21 +133,42 @@ pub fn image_jobs(
         out.push(ImageJob {
             path: f.clone(),
             id,
+            scene_id: None,
             k,
             expected,
-            scale,
+            depth: inputs::depth_params(scale.map(|s| (s, source.as_str())), c.depth_scale)?,
             source,
+            gt_obj_ids: None,
         });
     }
     Ok(out)
+}
+
+/// The obj_id written for `job`'s rows: `--obj-id`, else the model's metadata `obj_id`, else
+/// the single object of the image's ground truth.
+fn obj_id(a: &PredictArgs, forest: &isa_core::Forest, job: &ImageJob) -> CliResult<u64> {
+    if let Some(id) = a
+        .obj_id
+        .or_else(|| forest.metadata.extra.get("obj_id")?.as_u64())
+    {
+        return Ok(id);
+    }
+    match job.gt_obj_ids.as_deref() {
+        Some([id]) => Ok(*id),
+        Some(ids) if !ids.is_empty() && ids.iter().all(|i| i == &ids[0]) => Ok(ids[0]),
+        _ => Err(CliError::param(format!(
+            "--format bop: no obj_id for {}: the model's metadata has none and the scene's scene_gt.json does not name exactly one object for it; pass --obj-id",
+            job.path.display()
+        ))),
+    }
 }
 
 pub fn run(a: PredictArgs) -> CliResult<()> {
     let mut sources: Vec<(Value, String)> = params_file(a.params.as_deref())?.into_iter().collect();
     sources.push((flags_json(&a.flags), FLAGS.to_string()));
     params_over(&Valid::default(), &sources)?; // bad flags or parameter files fail before a model is read
-    let (jobs, scene_id) = jobs(&a)?;
-    let pb = spinner(a.quiet, format!("loading {}", a.model.display()));
+    let jobs = jobs(&a)?;
+    let pb = spinner(a.run.quiet, format!("loading {}", a.model.display()));
     let forest = load_model(&a.model)?;
     pb.finish_and_clear();
     let params = params_over(&forest.predict_defaults, &sources)?;
@@ -146,18 +178,23 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
             a.model.display()
         )));
     }
-    let pb = bar(a.quiet || jobs.len() < 2, jobs.len() as u64, "predicting");
+    let pb = bar(a.run.quiet || jobs.len() < 2, jobs.len() as u64, "predicting");
     let mut results = Vec::with_capacity(jobs.len());
     for job in jobs {
-        let d = inputs::read_depth_png(&job.path, job.scale)?;
-        inputs::check_size(&d, &job.k, job.expected, &job.source)?;
+        let d = inputs::read_depth(&job)?;
+        let obj_id = match a.format {
+            crate::args::Format::Bop => Some(obj_id(&a, &forest, &job)?),
+            crate::args::Format::Json => None,
+        };
         let img = DepthImage::new(&d.mm, d.width, d.height)?;
         let t0 = Instant::now();
-        let hyps = with_threads(a.threads, || vote::predict(&forest, &img, &job.k, &params))??;
+        let hyps = with_threads(a.run.threads, || vote::predict(&forest, &img, &job.k, &params))??;
         let seconds = t0.elapsed().as_secs_f64();
         results.push(ImageResult {
             width: d.width,
             height: d.height,
+            warnings: d.warnings,
+            obj_id,
             job,
             hyps,
             seconds,
@@ -165,9 +202,19 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
-    let text = match a.format {
-        crate::args::Format::Json => output::predict_json(&a.model, &params, &results),
-        crate::args::Format::Bop => output::bop_csv(&results, scene_id.unwrap_or(0), a.obj_id)?,
-    };
-    output::write(a.output.as_deref(), &text)
+    match a.format {
+        crate::args::Format::Json => output::write(
+            a.output.as_deref(),
+            &output::predict_json(&a.model, &params, &results),
+        ),
+        crate::args::Format::Bop => {
+            let text = output::bop_csv(&results)?;
+            let path = a
+                .output
+                .as_deref()
+                .map(|o| output::bop_results_path(o, &a.method, &a.scene))
+                .transpose()?;
+            output::write(path.as_deref(), &text)
+        }
+    }
 }

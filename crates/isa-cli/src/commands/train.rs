@@ -24,7 +24,7 @@ pub fn run(a: TrainArgs) -> CliResult<()> {
     if !a.trainset.exists() {
         return Err(CliError::missing(&a.trainset, "training-set file"));
     }
-    let pb = spinner(a.quiet, format!("reading {}", a.trainset.display()));
+    let pb = spinner(a.run.quiet, format!("reading {}", a.trainset.display()));
     let ts = trainset_io::read(&a.trainset)?;
     pb.finish_and_clear();
     // Metadata written by another version may name inference keys this one lacks: skipped.
@@ -55,11 +55,11 @@ pub fn run(a: TrainArgs) -> CliResult<()> {
         ts.n_parts(),
         ts.store.len()
     );
-    if a.threads == Some(0) {
+    if a.run.threads == Some(0) {
         return Err(CliError::param("--threads must be at least 1".into()));
     }
     let pb = bar(
-        a.quiet,
+        a.run.quiet,
         params.n_trees as u64,
         &format!("training {} trees", params.n_trees),
     );
@@ -68,7 +68,7 @@ pub fn run(a: TrainArgs) -> CliResult<()> {
         &params,
         &ts.training_set(),
         metadata,
-        a.threads,
+        a.run.threads,
         &|done| pb.set_position(done as u64),
     )?;
     forest.predict_defaults = predict_defaults;
@@ -76,7 +76,7 @@ pub fn run(a: TrainArgs) -> CliResult<()> {
     pb.finish_and_clear();
     forest.save(&a.output)?;
     let (nodes, leaves) = forest.size();
-    if !a.quiet {
+    if !a.run.quiet {
         // Not eprintln!: it panics when standard error is closed.
         let _ = writeln!(
             std::io::stderr(),

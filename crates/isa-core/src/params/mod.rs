@@ -1,6 +1,8 @@
 //! Every parameter set of the core, in one place: training ([`ForestParams`]), mode finding
 //! ([`VoteParams`]) and whole-image inference ([`PredictParams`]).
 //!
+//! Depth input ([`DepthParams`]: `depth_scale`) sits here too.
+//!
 //! Each is validated once: `check(self)` returns a [`Valid`] wrapper, which only this module can
 //! build, and the functions that use the parameters ([`Forest::fit`](crate::Forest::fit),
 //! [`predict`](crate::vote::predict)) take the wrapper, so they cannot receive unchecked values.
@@ -10,11 +12,13 @@
 //! messages name the key and where it came from.
 
 mod checks;
+mod depth;
 mod detect;
 mod forest;
 mod overlay;
 mod predict;
 
+pub use depth::{DepthParams, DEPTH_SCALE_HELP};
 pub use detect::{DetectParams, PlaneParams, RefineParams, VerifyParams, DEPTH_TOLERANCE};
 pub use forest::{ForestParams, Quality};
 pub use overlay::overlay_json;
