@@ -32,6 +32,10 @@ $PY -m pip install -q --disable-pip-version-check --no-deps "pyrender==0.1.45"
 if [ "${ISA_SETUP_DEV:-1}" = 1 ]; then
   $PY -m pip install -q --disable-pip-version-check -r requirements/dev.txt
 fi
-# The package itself: Rust core + PyO3 binding compiled by maturin (release profile).
+# The package itself: Rust core + PyO3 binding compiled by maturin (release profile). A build
+# from before the abi3 module (python/isa/_core.cpython-*.so) would shadow the new _core.abi3.so.
+rm -f python/isa/_core.cpython-*.so
 $PY -m pip install -q --disable-pip-version-check --no-build-isolation --no-deps -e .
-echo "[setup] done: $($PY -c 'import isa; print("isa", isa.__version__)')"
+# An assignment, so that a package that does not import stops the script (set -e).
+version=$($PY -c 'import isa; print("isa", isa.__version__)')
+echo "[setup] done: $version"

@@ -1,6 +1,9 @@
 //! The `isa` binary end to end: train -> inspect -> predict on a small synthetic set (poses
 //! recovered, JSON and BOP CSV outputs, BOP scene folders with depth_scale), and the exit codes
 //! and messages for bad inputs.
+//!
+//! Over 600 lines: every command's end-to-end cases share this file's fixtures (the trained
+//! models), which are built once per test binary.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

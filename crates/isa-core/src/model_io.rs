@@ -38,6 +38,8 @@
 //! added the field; the trees and votes are encoded as in version 1. Version 3 adds the per-leaf
 //! vote weights ([`LeafWeights`]) after the trees; a forest without them is written as version 2,
 //! so one-class models keep their bytes and older readers keep reading them.
+//!
+//! Over 600 lines because its unit tests live beside the code they test (`mod tests` below).
 
 use std::fs;
 use std::path::Path;

@@ -33,6 +33,8 @@
 //! entry, dtypes, shapes, finiteness and values (`TrainSetData::validate`: rotations unit
 //! within 1e-3, offsets within ±1e3 m, parts inside their image on depth > 0), so a bad file
 //! gives an error naming the entry.
+//!
+//! Over 600 lines because its unit tests live beside the code they test (`mod tests` below).
 
 use std::ops::Range;
 use std::path::Path;

@@ -84,6 +84,11 @@ impl Stored {
     }
 }
 
+/// The pixels of a 2D depth array of dtype `T` (named `dtype` in errors).
+fn pixels<T: numpy::Element + Copy>(depth: &Bound<'_, PyAny>, dtype: &str) -> PyResult<Vec<T>> {
+    Ok(as_slice(&array::<T>(depth, "depth", dtype, &[None, None])?, "depth")?.to_vec())
+}
+
 fn stored(depth: &Bound<'_, PyAny>, k: &Intrinsics) -> PyResult<(Stored, usize, usize)> {
     let arr = depth.cast::<PyUntypedArray>().map_err(|_| {
         input_err(format!(
@@ -118,29 +123,11 @@ fn stored(depth: &Bound<'_, PyAny>, k: &Intrinsics) -> PyResult<(Stored, usize, 
     }
     let (h, w) = (sh[0], sh[1]);
     let s = if dt.is_equiv_to(&numpy::dtype::<u16>(py)) {
-        Stored::U16(
-            as_slice(
-                &array::<u16>(depth, "depth", "uint16", &[None, None])?,
-                "depth",
-            )?
-            .to_vec(),
-        )
+        Stored::U16(pixels::<u16>(depth, "uint16")?)
     } else if dt.is_equiv_to(&numpy::dtype::<f32>(py)) {
-        Stored::F32(
-            as_slice(
-                &array::<f32>(depth, "depth", "float32", &[None, None])?,
-                "depth",
-            )?
-            .to_vec(),
-        )
+        Stored::F32(pixels::<f32>(depth, "float32")?)
     } else if dt.is_equiv_to(&numpy::dtype::<f64>(py)) {
-        Stored::F64(
-            as_slice(
-                &array::<f64>(depth, "depth", "float64", &[None, None])?,
-                "depth",
-            )?
-            .to_vec(),
-        )
+        Stored::F64(pixels::<f64>(depth, "float64")?)
     } else {
         return Err(input_err(format!(
             "depth: expected uint16 (millimetres, or units of depth_scale) or float32/float64 (metres, or units of depth_scale), got {}",

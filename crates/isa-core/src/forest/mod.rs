@@ -11,6 +11,8 @@
 //! part is its back-projected 3D point plus `offset`; `rotation` is the object rotation (unit
 //! quaternion w, x, y, z, w ≥ 0); `weight` is the mode's share of its leaf. Eq. 13 averages over
 //! trees: divide accumulated weights by `n_trees()`.
+//!
+//! Over 600 lines because its unit tests live beside the code they test (`mod tests` below).
 
 pub(crate) mod flat;
 mod leaf_weights;
