@@ -131,12 +131,12 @@ pub(crate) fn median(values: &mut [f64]) -> f64 {
 }
 
 /// `x.floor() as i64` without a libm call (x86-64's baseline has no rounding instruction):
-/// exact for |x| < 2^53.
+/// exact for |x| < 2^53; saturating beyond (as `as` casts are), never overflowing.
 #[inline]
 pub(crate) fn floor_i64(x: f64) -> i64 {
     let i = x as i64;
     if (i as f64) > x {
-        i - 1
+        i.saturating_sub(1)
     } else {
         i
     }
