@@ -317,7 +317,7 @@ pub fn refine_pose<'py>(
     let p: RefineParams = overlay(params, "refinement parameters")?;
     p.validate().map_err(to_py)?;
     let cam = Camera::new(intrinsics(K)?, width, height).map_err(to_py)?;
-    let obs = scene::refine::ObservedPoints::new(points_f64(points_up, "points_up")?);
+    let obs = points_f64(points_up, "points_up")?;
     let pts = points_f64(shape_points, "shape_points")?;
     let nrm = match given(normals) {
         Some(n) => Some(points_f64(n, "normals")?),

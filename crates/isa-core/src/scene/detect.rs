@@ -13,7 +13,7 @@ use serde_json::Value;
 use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource};
 use super::nms::{nms_across, UprightBox};
 use super::planes::{find_planes, Planes};
-use super::refine::{refine_pose, upright_points, ObservedPoints};
+use super::refine::{refine_pose, upright_points};
 use super::shapes::{ShapeLibrary, SizeRange};
 use super::verify::{verify_pose, Evidence, Verification};
 use super::{rot_z, rows, yaw_of, Camera, Frame};
@@ -433,7 +433,7 @@ pub fn detect(
     let obs_up = p
         .refine
         .as_ref()
-        .map(|_| ObservedPoints::new(upright_points(&frame, &rg, 2, floor, 0.02)));
+        .map(|_| upright_points(&frame, &rg, 2, floor, 0.02));
     // Verification and size per category (candidates in parallel), then refinement.
     let mut per_cat: Vec<Vec<Cand>> = models
         .par_iter()

@@ -49,95 +49,6 @@ pub fn upright_points(
     out
 }
 
-/// Observed upright points with an index of vertical columns, so that each hypothesis gathers
-/// the points in its box from the columns under the box instead of from the whole frame.
-pub struct ObservedPoints {
-    points: Vec<Vector3<f64>>,
-    lo: [f64; 2],
-    dims: [i64; 2],
-    /// Start of each column in `order` (compressed rows); indices ascending within a column.
-    start: Vec<u32>,
-    order: Vec<u32>,
-}
-
-/// Side (metres) of [`ObservedPoints`]' columns.
-const OBSERVED_COLUMN: f64 = 0.25;
-
-impl ObservedPoints {
-    pub fn new(points: Vec<Vector3<f64>>) -> Self {
-        let lo = points
-            .iter()
-            .fold([f64::INFINITY; 2], |m, p| [m[0].min(p.x), m[1].min(p.y)]);
-        let hi = points
-            .iter()
-            .fold([f64::NEG_INFINITY; 2], |m, p| [m[0].max(p.x), m[1].max(p.y)]);
-        let dims = if points.is_empty() {
-            [0, 0]
-        } else {
-            [0, 1].map(|k| ((hi[k] - lo[k]) / OBSERVED_COLUMN).floor() as i64 + 1)
-        };
-        let key = |p: &Vector3<f64>| {
-            let k = [0, 1].map(|a| floor_i64((p[a] - lo[a]) / OBSERVED_COLUMN));
-            (k[0] * dims[1] + k[1]) as usize
-        };
-        let n_cols = (dims[0] * dims[1]) as usize;
-        let mut start = vec![0u32; n_cols + 1];
-        let keys: Vec<usize> = points.iter().map(key).collect();
-        for &k in &keys {
-            start[k + 1] += 1;
-        }
-        for c in 0..n_cols {
-            start[c + 1] += start[c];
-        }
-        let mut fill = start.clone();
-        let mut order = vec![0u32; points.len()];
-        for (i, &k) in keys.iter().enumerate() {
-            order[fill[k] as usize] = i as u32;
-            fill[k] += 1;
-        }
-        ObservedPoints {
-            points,
-            lo,
-            dims,
-            start,
-            order,
-        }
-    }
-
-    /// The points within `half` of `centre` along the axes of the box turned by the yaw of
-    /// `(sin, cos)`, in their order: only the columns under the box's footprint are read (its
-    /// bounding rectangle, widened for rounding), the same points as testing every one.
-    fn in_box(&self, centre: &Vector3<f64>, (s, c): (f64, f64), half: &Vector3<f64>) -> Vec<Vector3<f64>> {
-        let inside = |q: &Vector3<f64>| {
-            let d = *q - centre;
-            (d.x * c + d.y * s).abs() <= half.x
-                && (d.y * c - d.x * s).abs() <= half.y
-                && d.z.abs() <= half.z
-        };
-        let ext = [
-            c.abs() * half.x + s.abs() * half.y,
-            s.abs() * half.x + c.abs() * half.y,
-        ]
-        .map(|e| e * (1.0 + 1e-9) + 1e-6);
-        let range = |a: usize| {
-            let k0 = floor_i64((centre[a] - ext[a] - self.lo[a]) / OBSERVED_COLUMN).max(0);
-            let k1 = floor_i64((centre[a] + ext[a] - self.lo[a]) / OBSERVED_COLUMN).min(self.dims[a] - 1);
-            (k0, k1)
-        };
-        let ((x0, x1), (y0, y1)) = (range(0), range(1));
-        let mut idx: Vec<u32> = Vec::new();
-        for kx in x0..=x1 {
-            for ky in y0..=y1 {
-                let col = (kx * self.dims[1] + ky) as usize;
-                let ids = &self.order[self.start[col] as usize..self.start[col + 1] as usize];
-                idx.extend(ids.iter().filter(|&&i| inside(&self.points[i as usize])));
-            }
-        }
-        idx.sort_unstable();
-        idx.into_iter().map(|i| self.points[i as usize]).collect()
-    }
-}
-
 /// Nearest-neighbour lookups within a fixed radius: the points bucketed in vertical columns
 /// of a dense 2D grid (side `radius / COLUMN_SPLIT`) over their bounds, each column's points
 /// sorted by height, so a query tests only the columns whose footprint meets its ball and, in
@@ -273,7 +184,7 @@ impl RadiusGrid {
 /// observed upright points `obs_up` ([`upright_points`], the floor left out).
 #[allow(clippy::too_many_arguments)]
 pub fn refine_pose(
-    obs_up: &ObservedPoints,
+    obs_up: &[Vector3<f64>],
     cam: &Camera,
     r: &Matrix3<f64>,
     t: &Vector3<f64>,
@@ -292,7 +203,16 @@ pub fn refine_pose(
     let yaw0 = yaw_of(&a);
     let c_up = a * centre_obj + b;
     let (s, c) = yaw0.sin_cos();
-    let near: Vec<Vector3<f64>> = obs_up.in_box(&c_up, (s, c), &half);
+    let near: Vec<Vector3<f64>> = obs_up
+        .iter()
+        .filter(|q| {
+            let d = *q - c_up;
+            (d.x * c + d.y * s).abs() <= half.x
+                && (d.y * c - d.x * s).abs() <= half.y
+                && d.z.abs() <= half.z
+        })
+        .copied()
+        .collect();
     let obs: Vec<Vector3<f64>> = if near.len() > p.max_points {
         let m = p.max_points;
         (0..m)
@@ -465,28 +385,6 @@ mod tests {
             }
         }
         assert_eq!(RadiusGrid::new(&[], 0.1).nearest(&Vector3::zeros()), None);
-        // The column index gathers the points of a turned box as testing every point does.
-        let obs: Vec<Vector3<f64>> = (0..20000)
-            .map(|_| Vector3::new(rnd() * 8.0 - 4.0, rnd() * 6.0, rnd() * 2.5 - 1.0))
-            .collect();
-        let index = ObservedPoints::new(obs.clone());
-        for _ in 0..300 {
-            let centre = Vector3::new(rnd() * 10.0 - 5.0, rnd() * 8.0 - 1.0, rnd() * 2.0 - 0.5);
-            let (s, c) = (rnd() * 7.0).sin_cos();
-            let half = Vector3::new(rnd() * 1.5, rnd() * 1.5, rnd() * 1.5);
-            let want: Vec<Vector3<f64>> = obs
-                .iter()
-                .filter(|q| {
-                    let d = *q - centre;
-                    (d.x * c + d.y * s).abs() <= half.x
-                        && (d.y * c - d.x * s).abs() <= half.y
-                        && d.z.abs() <= half.z
-                })
-                .copied()
-                .collect();
-            assert_eq!(index.in_box(&centre, (s, c), &half), want);
-        }
-        assert!(ObservedPoints::new(vec![]).in_box(&Vector3::zeros(), (0.0, 1.0), &Vector3::repeat(1.0)).is_empty());
     }
 
     #[test]
@@ -495,7 +393,7 @@ mod tests {
         let lib = box_library(size, 24);
         let (depth, cam, r, t, rg) = box_scene(size, 0.4);
         let frame = Frame::new(&depth, cam).unwrap();
-        let obs = ObservedPoints::new(upright_points(&frame, &rg, 2, Some(-1.2), 0.02));
+        let obs = upright_points(&frame, &rg, 2, Some(-1.2), 0.02);
         let pts: Vec<Vector3<f64>> = lib
             .points_of(0)
             .iter()
