@@ -79,7 +79,8 @@ const K640: Intrinsics = Intrinsics {
 
 /// A 10-tree forest (depth 20) trained on 24 views of the synthetic chair at 640x480.
 fn chair_forest() -> Forest {
-    let (store, poses) = synth::chair_views(24, |i| 0.3 + 0.1 * (i % 3) as f64, 2.5, &K640, 640, 480);
+    let (store, poses) =
+        synth::chair_views(24, |i| 0.3 + 0.1 * (i % 3) as f64, 2.5, &K640, 640, 480);
     let parts = sample_parts(&store, 2, Some(2000), 1).unwrap();
     let (offsets, rotations) = synth::view_targets(&parts, &store, &poses, &K640);
     let params = ForestParams {

@@ -246,7 +246,11 @@ pub fn inspect_text(forest: &Forest, file: &ModelFile<'_>) -> String {
     s += &format!(
         "forest        {} trees, {nodes} nodes, {leaves} leaves, {votes} leaf votes{}\n",
         forest.n_trees(),
-        if forest.leaf_weights.is_some() { ", leaf weights" } else { "" }
+        if forest.leaf_weights.is_some() {
+            ", leaf weights"
+        } else {
+            ""
+        }
     );
     let depths: Vec<usize> = forest.trees.iter().map(|t| t.depth()).collect();
     if let (Some(lo), Some(hi)) = (depths.iter().min(), depths.iter().max()) {

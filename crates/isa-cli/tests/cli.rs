@@ -181,7 +181,13 @@ fn train_inspect_predict_round_trip() {
     let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(doc["n_trees"], 4);
     // A one-class forest is written as format 2 (format 3 adds leaf weights).
-    assert_eq!((doc["format_version"].as_u64(), doc["leaf_weights"].as_bool()), (Some(2), Some(false)));
+    assert_eq!(
+        (
+            doc["format_version"].as_u64(),
+            doc["leaf_weights"].as_bool()
+        ),
+        (Some(2), Some(false))
+    );
     assert_eq!(doc["metadata"]["category"], "chair");
     assert_eq!(doc["params"]["max_depth"], 14);
     assert_eq!(doc["trees"].as_array().unwrap().len(), 4);
@@ -450,7 +456,13 @@ fn wrong_images_exit_4_with_reason() {
         .unwrap();
     let wide = tmp("wide.png");
     write_png(&wide, 200, 120, vec![1000; 200 * 120]);
-    let o = isa(&["predict", m, wide.to_str().unwrap(), "-c", cam.to_str().unwrap()]);
+    let o = isa(&[
+        "predict",
+        m,
+        wide.to_str().unwrap(),
+        "-c",
+        cam.to_str().unwrap(),
+    ]);
     expect_exit(&o, 4, &["wide.png", "200x120", "160x120"]);
     // 8-bit PNG; not an image at all.
     let k20 = Intrinsics {
@@ -464,7 +476,11 @@ fn wrong_images_exit_4_with_reason() {
         .unwrap()
         .save(&eight)
         .unwrap();
-    expect_exit(&predict_k(m, &eight, &k20, &[]), 4, &["eight.png", "16-bit"]);
+    expect_exit(
+        &predict_k(m, &eight, &k20, &[]),
+        4,
+        &["eight.png", "16-bit"],
+    );
     let txt = tmp("notimage.png");
     std::fs::write(&txt, "hello").unwrap();
     expect_exit(&predict_k(m, &txt, &k20, &[]), 4, &["notimage.png"]);
@@ -482,7 +498,11 @@ fn bad_parameters_exit_5_and_usage_exit_2() {
     std::fs::write(&params, r#"{"vote": {"bandwith": 1}}"#).unwrap();
     let o = predict_k(m, &png, &K, &["--params", params.to_str().unwrap()]);
     expect_exit(&o, 5, &["bandwith"]);
-    expect_exit(&predict_k(m, &png, &K, &["--depth-scale", "0"]), 5, &["depth_scale"]);
+    expect_exit(
+        &predict_k(m, &png, &K, &["--depth-scale", "0"]),
+        5,
+        &["depth_scale"],
+    );
     let ts = tmp("q2.isat");
     write_trainset(&ts, "{}");
     let never = tmp("never.isaf");
@@ -528,20 +548,45 @@ fn unwritable_output_is_exit_3_naming_it_and_leaves_nothing() {
     write_png(&png, 160, 120, vec![1500; 160 * 120]);
     let dir = tmp("unwritable-out");
     std::fs::create_dir_all(&dir).unwrap();
-    for out in ["/nonexistent/dir/out.json".to_string(), dir.display().to_string()] {
-        let o = isa(&["predict", m, png.to_str().unwrap(), "-k", "200", "200", "79.5", "59.5", "-q", "-o", &out]);
+    for out in [
+        "/nonexistent/dir/out.json".to_string(),
+        dir.display().to_string(),
+    ] {
+        let o = isa(&[
+            "predict",
+            m,
+            png.to_str().unwrap(),
+            "-k",
+            "200",
+            "200",
+            "79.5",
+            "59.5",
+            "-q",
+            "-o",
+            &out,
+        ]);
         assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
         assert!(stderr(&o).contains(&out), "{}", stderr(&o));
     }
     let temps = std::fs::read_dir(dir.parent().unwrap())
         .unwrap()
-        .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().contains(".isa-tmp-"))
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .contains(".isa-tmp-")
+        })
         .count();
     assert_eq!(temps, 0, "no temporary file left");
     let ts = tmp("chair.isat");
     let o = train_q1(&ts, Path::new("/nonexistent/dir/m.isaf"), &[]);
     assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
-    assert!(stderr(&o).contains("/nonexistent/dir/m.isaf"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("/nonexistent/dir/m.isaf"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// Issue 20: `--position-bandwidth nan` failed with a message naming no flag; `-k` could not
@@ -552,11 +597,19 @@ fn number_flags_name_themselves_and_negative_numbers_parse() {
     let png = tmp("flags.png");
     write_png(&png, 160, 120, vec![1500; 160 * 120]);
     let p = png.to_str().unwrap();
-    for (flag, v) in [("--position-bandwidth", "nan"), ("--nms-radius", "inf"), ("--min-depth", "-inf")] {
+    for (flag, v) in [
+        ("--position-bandwidth", "nan"),
+        ("--nms-radius", "inf"),
+        ("--min-depth", "-inf"),
+    ] {
         let arg = format!("{flag}={v}");
         let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", &arg]);
         assert_eq!(o.status.code(), Some(2), "{flag} {v}: {}", stderr(&o));
-        assert!(stderr(&o).contains(flag) && stderr(&o).contains("finite"), "{}", stderr(&o));
+        assert!(
+            stderr(&o).contains(flag) && stderr(&o).contains("finite"),
+            "{}",
+            stderr(&o)
+        );
     }
     let ts = tmp("chair.isat");
     let o = train_q1(&ts, &tmp("never.isaf"), &["--bag-fraction", "nan"]);
@@ -566,7 +619,11 @@ fn number_flags_name_themselves_and_negative_numbers_parse() {
     // outside the image: an input error naming the image.
     let o = isa(&["predict", m, p, "-k", "200", "200", "-3", "59.5"]);
     assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
-    assert!(stderr(&o).contains("principal point") && stderr(&o).contains("flags.png"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("principal point") && stderr(&o).contains("flags.png"),
+        "{}",
+        stderr(&o)
+    );
     let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", "-q"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
 }
@@ -585,22 +642,40 @@ fn sigint_while_training_leaves_no_half_written_model() {
     std::fs::write(&out, b"old").unwrap();
     for delay_ms in [50u64, 200, 400] {
         let mut child = Command::new(env!("CARGO_BIN_EXE_isa"))
-            .args(["train", ts.to_str().unwrap(), "-o", out.to_str().unwrap(), "--quality", "Q1", "--quiet", "--n-trees", "30"])
+            .args([
+                "train",
+                ts.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+                "--quality",
+                "Q1",
+                "--quiet",
+                "--n-trees",
+                "30",
+            ])
             .spawn()
             .unwrap();
         std::thread::sleep(std::time::Duration::from_millis(delay_ms));
-        let _ = Command::new("kill").args(["-INT", &child.id().to_string()]).status();
+        let _ = Command::new("kill")
+            .args(["-INT", &child.id().to_string()])
+            .status();
         let st = child.wait().unwrap();
         let bytes = std::fs::read(&out).unwrap();
         if st.signal() == Some(2) {
             assert_eq!(bytes, b"old");
         } else {
-            assert!(st.success() && isa_core::Forest::from_bytes(&bytes).is_ok(), "{st:?}");
+            assert!(
+                st.success() && isa_core::Forest::from_bytes(&bytes).is_ok(),
+                "{st:?}"
+            );
             std::fs::write(&out, b"old").unwrap();
         }
     }
     isa_core::atomic::write_bytes(&out, b"next").unwrap();
-    let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(names, ["m.isaf"]);
 }
 
@@ -648,7 +723,11 @@ fn detect_model() -> &'static PathBuf {
 }
 
 fn floats(v: &serde_json::Value) -> Vec<f64> {
-    v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
 }
 
 #[test]
@@ -658,16 +737,42 @@ fn detect_two_categories_one_object_json_and_bop() {
     let png = tmp("000007.png");
     write_png(&png, 320, 240, depth);
     let g = format!("--gravity={},{},{}", -r[0][2], -r[1][2], -r[2][2]); // the object's -z (down) in the camera
-    let (fx, fy, cx, cy) = (k.fx.to_string(), k.fy.to_string(), k.cx.to_string(), k.cy.to_string());
+    let (fx, fy, cx, cy) = (
+        k.fx.to_string(),
+        k.fy.to_string(),
+        k.cx.to_string(),
+        k.cy.to_string(),
+    );
     let (chair, toilet) = (format!("chair={m}"), format!("toilet={m}"));
-    let base = ["detect", "--model", &chair, "--model", &toilet, png.to_str().unwrap(), "-k", &fx, &fy, &cx, &cy,
-                &g, "--stride", "2", "-q"];
+    let base = [
+        "detect",
+        "--model",
+        &chair,
+        "--model",
+        &toilet,
+        png.to_str().unwrap(),
+        "-k",
+        &fx,
+        &fy,
+        &cx,
+        &cy,
+        &g,
+        "--stride",
+        "2",
+        "-q",
+    ];
     let o = isa(&base);
     assert!(o.status.success(), "{}", stderr(&o));
     let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let img = &doc["images"][0];
     assert_eq!(img["gravity_source"], "given");
-    assert_eq!(doc["models"][0]["shapes"].as_str().unwrap(), detect_model().with_extension("shapes.isl").to_str().unwrap());
+    assert_eq!(
+        doc["models"][0]["shapes"].as_str().unwrap(),
+        detect_model()
+            .with_extension("shapes.isl")
+            .to_str()
+            .unwrap()
+    );
     let dets = img["detections"].as_array().unwrap();
     // Both models fire on the one chair: one verified detection of it survives, on the truth
     // (refuted ones, score below 0, may stay beside it: their boxes overlap it too little).
@@ -678,21 +783,41 @@ fn detect_two_categories_one_object_json_and_bop() {
     assert_eq!(near.len(), 1, "{dets:?}");
     let best = &dets[0];
     assert!(err_t(&floats(&best["t"]), t) < 0.05, "{best}");
-    assert!(best["score"].as_f64().unwrap() > 0.5 && best["shape"] == 0, "{best}");
+    assert!(
+        best["score"].as_f64().unwrap() > 0.5 && best["shape"] == 0,
+        "{best}"
+    );
     let scores: Vec<f64> = dets.iter().map(|d| d["score"].as_f64().unwrap()).collect();
     assert!(scores.windows(2).all(|w| w[0] >= w[1]));
     // BOP CSV: one header, a row per detection, obj_id by category.
     let csv = tmp("detect.csv");
     let mut args = base.to_vec();
-    args.extend(["--format", "bop", "--obj-id", "toilet=7", "--scene-id", "2", "-o", csv.to_str().unwrap()]);
+    args.extend([
+        "--format",
+        "bop",
+        "--obj-id",
+        "toilet=7",
+        "--scene-id",
+        "2",
+        "-o",
+        csv.to_str().unwrap(),
+    ]);
     let o = isa(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = std::fs::read_to_string(&csv).unwrap();
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines[0], "scene_id,im_id,obj_id,score,R,t,time");
     assert_eq!(lines.len(), dets.len() + 1);
-    let want = if best["category"] == "toilet" { "7" } else { "1" };
-    assert!(lines[1].starts_with(&format!("2,7,{want},")), "{}", lines[1]);
+    let want = if best["category"] == "toilet" {
+        "7"
+    } else {
+        "1"
+    };
+    assert!(
+        lines[1].starts_with(&format!("2,7,{want},")),
+        "{}",
+        lines[1]
+    );
     assert_eq!(text.matches("scene_id").count(), 1);
 }
 
@@ -702,7 +827,12 @@ fn detect_errors_name_their_cause() {
     let (depth, k, _, _) = test_view(3);
     let png = tmp("detect_err.png");
     write_png(&png, 320, 240, depth);
-    let (fx, fy, cx, cy) = (k.fx.to_string(), k.fy.to_string(), k.cx.to_string(), k.cy.to_string());
+    let (fx, fy, cx, cy) = (
+        k.fx.to_string(),
+        k.fy.to_string(),
+        k.cx.to_string(),
+        k.cy.to_string(),
+    );
     let p = png.to_str().unwrap();
     let run = |extra: &[&str]| {
         let mut a = vec!["detect", p, "-k", &fx, &fy, &cx, &cy, "-q"];
@@ -720,7 +850,12 @@ fn detect_errors_name_their_cause() {
         assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
         assert!(stderr(&o).contains("--gravity"));
     }
-    let o = run(&["--model", &m, "--shapes", tmp("no_shapes_here").to_str().unwrap()]);
+    let o = run(&[
+        "--model",
+        &m,
+        "--shapes",
+        tmp("no_shapes_here").to_str().unwrap(),
+    ]);
     assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
     assert!(stderr(&o).contains("chair.shapes.isl"), "{}", stderr(&o));
     let params = tmp("detect_params.json");
@@ -741,24 +876,51 @@ fn depth_scales_and_transposed_images_warn_or_fail() {
     let tum = tmp("tum.png");
     write_png(&tum, 320, 240, depth.iter().map(|&d| d * 5).collect());
     let o = predict_k(m, &tum, &k, &["--stride", "2", "--depth-scale", "0.2"]);
-    assert!(err_t(&best_t(&o), t) < 0.03 && !stderr(&o).contains("warning"), "{}", stderr(&o));
+    assert!(
+        err_t(&best_t(&o), t) < 0.03 && !stderr(&o).contains("warning"),
+        "{}",
+        stderr(&o)
+    );
     // Without the scale: the pose is 5x too far, and the warning says why.
     let o = predict_k(m, &tum, &k, &["--stride", "2"]);
     let e = stderr(&o);
-    assert!(e.contains("isa: warning: depth image") && e.contains("tum.png") && e.contains("depth_scale"), "{e}");
+    assert!(
+        e.contains("isa: warning: depth image")
+            && e.contains("tum.png")
+            && e.contains("depth_scale"),
+        "{e}"
+    );
     let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert!(doc["images"][0]["warnings"][0].as_str().unwrap().contains("median 12."), "{doc}");
+    assert!(
+        doc["images"][0]["warnings"][0]
+            .as_str()
+            .unwrap()
+            .contains("median 12."),
+        "{doc}"
+    );
     // A camera file's depth_scale is used; --depth-scale overrides it.
     let cam = tmp("tum-camera.json");
     std::fs::write(&cam, format!(r#"{{"fx": {}, "fy": {}, "cx": {}, "cy": {}, "width": 320, "height": 240, "depth_scale": 0.2}}"#, k.fx, k.fy, k.cx, k.cy)).unwrap();
     let run = |extra: &[&str]| {
-        let mut args = vec!["predict", m, tum.to_str().unwrap(), "-c", cam.to_str().unwrap(), "--stride", "2"];
+        let mut args = vec![
+            "predict",
+            m,
+            tum.to_str().unwrap(),
+            "-c",
+            cam.to_str().unwrap(),
+            "--stride",
+            "2",
+        ];
         args.extend_from_slice(extra);
         isa(&args)
     };
     assert!(err_t(&best_t(&run(&[])), t) < 0.03);
     let o = run(&["--depth-scale", "1"]);
-    assert!(stderr(&o).contains("depth_scale 1 mm per unit (given)"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("depth_scale 1 mm per unit (given)"),
+        "{}",
+        stderr(&o)
+    );
     // Transposed: an error when the camera states the size, a warning when it cannot.
     let mut tr = vec![0u16; 320 * 240];
     for v in 0..240 {
@@ -768,7 +930,13 @@ fn depth_scales_and_transposed_images_warn_or_fail() {
     }
     let trp = tmp("transposed.png");
     write_png(&trp, 240, 320, tr);
-    let o = isa(&["predict", m, trp.to_str().unwrap(), "-c", cam.to_str().unwrap()]);
+    let o = isa(&[
+        "predict",
+        m,
+        trp.to_str().unwrap(),
+        "-c",
+        cam.to_str().unwrap(),
+    ]);
     expect_exit(&o, 4, &["transposed.png", "transposed"]);
     let o = predict_k(m, &trp, &k, &[]);
     expect_exit(&o, 0, &["transposed.png", "transposed"]);
@@ -796,7 +964,11 @@ fn load_bop_results(text: &str) -> Vec<BopRow> {
         }
         let e: Vec<&str> = line.split(',').collect();
         assert_eq!(e.len(), 7, "line {}: {line:?}", i + 1);
-        let floats = |s: &str| -> Vec<f64> { s.split_whitespace().map(|v| v.trim().parse().unwrap()).collect() };
+        let floats = |s: &str| -> Vec<f64> {
+            s.split_whitespace()
+                .map(|v| v.trim().parse().unwrap())
+                .collect()
+        };
         let (r, t) = (floats(e[4]), floats(e[5]));
         assert_eq!((r.len(), t.len()), (9, 3));
         let int = |s: &str| -> u64 { s.trim().parse().unwrap() };
@@ -813,7 +985,11 @@ fn load_bop_results(text: &str) -> Vec<BopRow> {
     let mut times = std::collections::HashMap::new();
     for r in &out {
         let t0: f64 = *times.entry((r.scene_id, r.im_id)).or_insert(r.time);
-        assert!((t0 - r.time).abs() <= 0.001, "image {:?}: times differ", (r.scene_id, r.im_id));
+        assert!(
+            (t0 - r.time).abs() <= 0.001,
+            "image {:?}: times differ",
+            (r.scene_id, r.im_id)
+        );
     }
     out
 }
@@ -839,13 +1015,18 @@ fn a_bop_split_to_one_results_file_bop_toolkit_reads() {
     let out = tmp("bop-out");
     std::fs::create_dir_all(&out).unwrap();
     let (s, o) = (split.to_str().unwrap(), out.to_str().unwrap());
-    let run = isa(&["predict", m, "--scene", s, "--format", "bop", "-o", o, "--stride", "2", "-q"]);
+    let run = isa(&[
+        "predict", m, "--scene", s, "--format", "bop", "-o", o, "--stride", "2", "-q",
+    ]);
     assert!(run.status.success(), "{}", stderr(&run));
     let text = std::fs::read_to_string(out.join("isa_bopds-test.csv")).unwrap();
     assert_eq!(text.matches("scene_id").count(), 1, "{text}");
     let rows = load_bop_results(&text);
     for (scene_id, obj, t) in truth {
-        let first = rows.iter().find(|r| r.scene_id == scene_id).expect("rows of every scene");
+        let first = rows
+            .iter()
+            .find(|r| r.scene_id == scene_id)
+            .expect("rows of every scene");
         assert_eq!((first.im_id, first.obj_id), (0, obj));
         let tm: Vec<f64> = first.t.iter().map(|v| v / 1000.0).collect();
         assert!(err_t(&tm, t) < 0.03, "scene {scene_id}: {tm:?} vs {t:?}");
@@ -858,9 +1039,23 @@ fn a_bop_split_to_one_results_file_bop_toolkit_reads() {
     expect_exit(&run, 5, &["obj_id", "--obj-id"]);
     // A file name bop_toolkit would not parse: written, with a warning naming the pattern.
     let f = out.join("results.csv");
-    let run = isa(&["predict", m, "--scene", s, "--format", "bop", "--obj-id", "9", "-o", f.to_str().unwrap(), "-q"]);
+    let run = isa(&[
+        "predict",
+        m,
+        "--scene",
+        s,
+        "--format",
+        "bop",
+        "--obj-id",
+        "9",
+        "-o",
+        f.to_str().unwrap(),
+        "-q",
+    ]);
     expect_exit(&run, 0, &["METHOD_DATASET-SPLIT.csv"]);
-    assert!(load_bop_results(&std::fs::read_to_string(&f).unwrap()).iter().all(|r| r.obj_id == 9));
+    assert!(load_bop_results(&std::fs::read_to_string(&f).unwrap())
+        .iter()
+        .all(|r| r.obj_id == 9));
 }
 
 /// Issue 19: the JSON gives the pose also as one 4x4 matrix.

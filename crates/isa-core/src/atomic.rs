@@ -260,11 +260,17 @@ mod tests {
             Err(io::Error::other("disk full"))
         })
         .unwrap_err();
-        assert!(e.to_string().contains("m.isaf") && e.to_string().contains("disk full"), "{e}");
+        assert!(
+            e.to_string().contains("m.isaf") && e.to_string().contains("disk full"),
+            "{e}"
+        );
         assert_eq!(fs::read(&path).unwrap(), b"old");
         assert_eq!(names(&dir), ["m.isaf"]);
         let missing = dir.join("no/such/dir/m.isaf");
-        assert!(matches!(write_bytes(&missing, b"x"), Err(IsaError::Io { .. })));
+        assert!(matches!(
+            write_bytes(&missing, b"x"),
+            Err(IsaError::Io { .. })
+        ));
         fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -203,7 +203,11 @@ impl<'a> RawTargets<'a> {
         }
         check_finite("offsets", self.offsets, 3)?;
         check_finite("rotations", self.rotations, 4)?;
-        if let Some(k) = self.offsets.iter().position(|v| v.abs() > MAX_TARGET_OFFSET) {
+        if let Some(k) = self
+            .offsets
+            .iter()
+            .position(|v| v.abs() > MAX_TARGET_OFFSET)
+        {
             return bad(format!(
                 "offsets[{}, {}] = {} is beyond ±{MAX_TARGET_OFFSET} m",
                 k / 3,

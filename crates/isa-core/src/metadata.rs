@@ -79,9 +79,8 @@ impl ModelMetadata {
     }
 
     fn from_value(v: Map<String, Value>, source: &str) -> Result<Self> {
-        serde_json::from_value(Value::Object(v)).map_err(|e| {
-            IsaError::InvalidParameter(format!("{source}: {e}"))
-        })
+        serde_json::from_value(Value::Object(v))
+            .map_err(|e| IsaError::InvalidParameter(format!("{source}: {e}")))
     }
 
     /// The JSON form (one object).
@@ -124,9 +123,9 @@ pub fn split_metadata(
             defaults.overlay(&d, &src)?;
         }
     }
-    let defaults = defaults
-        .check()
-        .map_err(|e| IsaError::InvalidParameter(format!("{source}: {PREDICT_DEFAULTS_KEY}: {e}")))?;
+    let defaults = defaults.check().map_err(|e| {
+        IsaError::InvalidParameter(format!("{source}: {PREDICT_DEFAULTS_KEY}: {e}"))
+    })?;
     Ok((ModelMetadata::from_value(o, source)?, defaults))
 }
 
@@ -148,7 +147,10 @@ mod tests {
         assert_eq!(m.extra["ssc"], json!({"x": 1.5}));
         let back: Value = serde_json::from_str(&m.to_json()).unwrap();
         assert_eq!(back, src);
-        assert_eq!(ModelMetadata::from_json("", "t").unwrap(), ModelMetadata::default());
+        assert_eq!(
+            ModelMetadata::from_json("", "t").unwrap(),
+            ModelMetadata::default()
+        );
     }
 
     #[test]
@@ -165,14 +167,27 @@ mod tests {
         let e = split_metadata(r#"{"predict_defaults": {"strde": 3}}"#, "metadata", false)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("metadata: predict_defaults") && e.contains("\"strde\""), "{e}");
-        let (_, d) = split_metadata(r#"{"predict_defaults": {"strde": 3, "stride": 2}}"#, "m", true).unwrap();
+        assert!(
+            e.contains("metadata: predict_defaults") && e.contains("\"strde\""),
+            "{e}"
+        );
+        let (_, d) = split_metadata(
+            r#"{"predict_defaults": {"strde": 3, "stride": 2}}"#,
+            "m",
+            true,
+        )
+        .unwrap();
         assert_eq!(d.stride, 2);
         let e = split_metadata(r#"{"predict_defaults": {"stride": 0}}"#, "m", true)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("predict_defaults") && e.contains("stride"), "{e}");
-        let e = split_metadata(r#"{"category": 3}"#, "metadata", false).unwrap_err().to_string();
+        assert!(
+            e.contains("predict_defaults") && e.contains("stride"),
+            "{e}"
+        );
+        let e = split_metadata(r#"{"category": 3}"#, "metadata", false)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("metadata") && e.contains("invalid type"), "{e}");
         assert!(split_metadata("[1]", "metadata", false).is_err());
     }

@@ -211,7 +211,10 @@ fn legacy_metadata(raw: String) -> R<(ModelMetadata, crate::params::Valid<Predic
     match split_metadata(&python_floats_to_null(&raw), "metadata", true) {
         Ok(v) => Ok(v),
         // Bad inference defaults are an error; metadata that is not an object is kept as text.
-        Err(e) if e.to_string().contains(crate::metadata::PREDICT_DEFAULTS_KEY) => {
+        Err(e)
+            if e.to_string()
+                .contains(crate::metadata::PREDICT_DEFAULTS_KEY) =>
+        {
             Err(e.to_string())
         }
         Err(_) => {
@@ -290,13 +293,18 @@ pub fn encode_tree(tree: &Tree) -> Vec<u8> {
 pub fn decode_tree(bytes: &[u8], what: &str) -> Result<Tree> {
     let err = |reason: String| IsaError::InvalidInput(format!("{what}: {reason}"));
     if bytes.len() < 16 || &bytes[..8] != TREE_MAGIC {
-        return Err(err("not an isa tree (wrong magic bytes or truncated)".into()));
+        return Err(err(
+            "not an isa tree (wrong magic bytes or truncated)".into()
+        ));
     }
     let (body, tail) = bytes.split_at(bytes.len() - 8);
     if fnv1a64(body) != u64::from_le_bytes(tail.try_into().expect("8 bytes")) {
         return Err(err("checksum mismatch (truncated or corrupted)".into()));
     }
-    let mut r = Reader { b: &body[8..], pos: 0 };
+    let mut r = Reader {
+        b: &body[8..],
+        pos: 0,
+    };
     let tree = read_tree(&mut r, 0).map_err(err)?;
     if r.left() != 0 {
         return Err(err(format!("{} unexpected bytes after the tree", r.left())));
@@ -315,7 +323,10 @@ fn python_floats_to_null(raw: &str) -> String {
             escaped = !escaped && c == '\\';
         } else if c == '"' {
             in_str = true;
-        } else if let Some(tok) = ["-Infinity", "Infinity", "NaN"].iter().find(|t| rest.starts_with(**t)) {
+        } else if let Some(tok) = ["-Infinity", "Infinity", "NaN"]
+            .iter()
+            .find(|t| rest.starts_with(**t))
+        {
             out.push_str("null");
             rest = &rest[tok.len()..];
             continue;
@@ -355,7 +366,12 @@ pub fn decode_payload(payload: &[u8], version: u32) -> R<Forest> {
         for ti in 0..n_trees {
             let what = |e: String| format!("leaf weights of tree {ti}: {e}");
             let n = r.count(4, "weights").map_err(what)?;
-            per_tree.push((0..n).map(|_| r.f32()).collect::<R<Vec<f32>>>().map_err(what)?);
+            per_tree.push(
+                (0..n)
+                    .map(|_| r.f32())
+                    .collect::<R<Vec<f32>>>()
+                    .map_err(what)?,
+            );
         }
         Some(LeafWeights::checked(per_tree, &trees)?)
     } else {
@@ -436,7 +452,8 @@ pub fn decode(bytes: &[u8], path: &str) -> Result<Forest> {
 
 /// The format version of a model file's bytes (its header), if they start like one.
 pub fn file_version(bytes: &[u8]) -> Option<u32> {
-    (bytes.len() >= 12 && &bytes[..8] == MAGIC).then(|| u32::from_le_bytes(bytes[8..12].try_into().unwrap()))
+    (bytes.len() >= 12 && &bytes[..8] == MAGIC)
+        .then(|| u32::from_le_bytes(bytes[8..12].try_into().unwrap()))
 }
 
 /// Writes a forest atomically ([`crate::atomic`]).
@@ -514,7 +531,11 @@ mod tests {
     /// [`small_forest`] with leaf weights that differ between leaves (format version 3).
     fn weighted_forest() -> Forest {
         let f = small_forest();
-        let w = f.trees.iter().map(|t| (0..t.n_leaves()).map(|l| (l % 4) as f32 / 3.0).collect()).collect();
+        let w = f
+            .trees
+            .iter()
+            .map(|t| (0..t.n_leaves()).map(|l| (l % 4) as f32 / 3.0).collect())
+            .collect();
         f.with_leaf_weights(Some(w)).unwrap()
     }
 
@@ -529,19 +550,32 @@ mod tests {
         assert!(bw[HEADER..].starts_with(&bp[HEADER..]));
         let g = decode(&bw, "w.isa").unwrap();
         assert_eq!(g, f);
-        assert_eq!(g.leaf_weights.unwrap().per_tree(), f.leaf_weights.as_ref().unwrap().per_tree());
+        assert_eq!(
+            g.leaf_weights.unwrap().per_tree(),
+            f.leaf_weights.as_ref().unwrap().per_tree()
+        );
         assert_eq!(decode(&bp, "p.isa").unwrap().leaf_weights, None);
         // A version-3 header on a payload without weights, and weights out of range or for the
         // wrong number of leaves, are refused by name.
-        let e = decode(&seal(3, &bp[HEADER..]), "cut.isa").unwrap_err().to_string();
-        assert!(e.contains("cut.isa") && e.contains("leaf weights of tree 0"), "{e}");
+        let e = decode(&seal(3, &bp[HEADER..]), "cut.isa")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("cut.isa") && e.contains("leaf weights of tree 0"),
+            "{e}"
+        );
         let mut payload = bw[HEADER..].to_vec();
         let k = payload.len() - 4;
         payload[k..].copy_from_slice(&1.5f32.to_le_bytes());
-        let e = decode(&seal(3, &payload), "big.isa").unwrap_err().to_string();
+        let e = decode(&seal(3, &payload), "big.isa")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("big.isa") && e.contains("not in [0, 1]"), "{e}");
         payload[k..].copy_from_slice(&f32::NAN.to_le_bytes());
-        assert!(decode(&seal(3, &payload), "nan.isa").unwrap_err().to_string().contains("non-finite"));
+        assert!(decode(&seal(3, &payload), "nan.isa")
+            .unwrap_err()
+            .to_string()
+            .contains("non-finite"));
         let n0 = f.trees[0].n_leaves();
         let mut short = bp[HEADER..].to_vec();
         for t in &f.trees {
@@ -620,15 +654,24 @@ mod tests {
         assert_eq!(f.metadata.extra["ssc"], serde_json::json!([0.0, 0.0, 0.0]));
         assert!(!f.metadata.extra.contains_key("predict_defaults"));
         let d = &f.predict_defaults;
-        assert_eq!((d.stride, d.vote.position_bandwidth, d.vote.max_hypotheses), (3, 0.06, 2));
-        assert_eq!(d.vote.min_support, PredictParams::default().vote.min_support);
+        assert_eq!(
+            (d.stride, d.vote.position_bandwidth, d.vote.max_hypotheses),
+            (3, 0.06, 2)
+        );
+        assert_eq!(
+            d.vote.min_support,
+            PredictParams::default().vote.min_support
+        );
         // Format 2 moves the header and the fields before the trees only: the trees' bytes are
         // the old file's, and a rewritten file reads back the same forest.
         let mut trees = Vec::new();
         encode_trees(&mut trees, &f);
         assert!(V1.ends_with(&trees));
         let v2 = encode(&f);
-        assert_eq!(u32::from_le_bytes(v2[8..12].try_into().unwrap()), ONE_CLASS_VERSION);
+        assert_eq!(
+            u32::from_le_bytes(v2[8..12].try_into().unwrap()),
+            ONE_CLASS_VERSION
+        );
         assert!(v2.ends_with(&trees));
         assert_eq!(decode(&v2, "v2").unwrap(), f);
     }
@@ -642,7 +685,10 @@ mod tests {
         let g = decode(&version_1_file(&f, raw), "old").unwrap();
         assert!(g.metadata.extra.get("legacy_metadata").is_none());
         assert_eq!(g.metadata.category.as_deref(), Some("bed"));
-        assert_eq!(g.metadata.category_box.as_ref().unwrap().size, [1.0, 2.0, 0.5]);
+        assert_eq!(
+            g.metadata.category_box.as_ref().unwrap().size,
+            [1.0, 2.0, 0.5]
+        );
         let ssc = &g.metadata.extra["ssc"];
         assert_eq!(ssc["d"], serde_json::json!([0.2, null, null, null]));
         assert_eq!(ssc["note"], "NaN \" Infinity");
@@ -654,11 +700,23 @@ mod tests {
         for (raw, kept) in [("not json", true), ("[1, 2]", true), ("", false)] {
             let g = decode(&version_1_file(&f, raw), "old").unwrap();
             assert_eq!(g.trees, f.trees);
-            assert_eq!(g.metadata.extra.get("legacy_metadata").is_some(), kept, "{raw}");
+            assert_eq!(
+                g.metadata.extra.get("legacy_metadata").is_some(),
+                kept,
+                "{raw}"
+            );
         }
         // Bad inference defaults in an old file are a format error naming them.
-        let e = decode(&version_1_file(&f, r#"{"predict_defaults": {"stride": 0}}"#), "old").unwrap_err().to_string();
-        assert!(e.contains("predict_defaults") && e.contains("stride"), "{e}");
+        let e = decode(
+            &version_1_file(&f, r#"{"predict_defaults": {"stride": 0}}"#),
+            "old",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("predict_defaults") && e.contains("stride"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -672,7 +730,10 @@ mod tests {
         let g = decode(&encode(&f), "x").unwrap();
         assert_eq!(g.predict_defaults, f.predict_defaults);
         assert_eq!(g.metadata, f.metadata);
-        assert_eq!(g.metadata.training.unwrap().n_parts, f.metadata.training.unwrap().n_parts);
+        assert_eq!(
+            g.metadata.training.unwrap().n_parts,
+            f.metadata.training.unwrap().n_parts
+        );
     }
 
     /// Issue 20: a zero vote quaternion (valid checksum) loaded and predicted NaN rotations;
@@ -684,8 +745,14 @@ mod tests {
         type Edit = fn(&mut Tree, usize);
         let cases: [(Edit, &str); 8] = [
             (|t, _| t.votes[0].rotation = [0.0; 4], "rotation"),
-            (|t, _| t.votes[0].rotation = [5.0, 0.0, 0.0, 0.0], "rotation"),
-            (|t, _| t.votes[0].rotation = [1e30, 0.0, 0.0, 0.0], "rotation"),
+            (
+                |t, _| t.votes[0].rotation = [5.0, 0.0, 0.0, 0.0],
+                "rotation",
+            ),
+            (
+                |t, _| t.votes[0].rotation = [1e30, 0.0, 0.0, 0.0],
+                "rotation",
+            ),
             (|t, _| t.votes[0].weight = -0.25, "weight"),
             (|t, _| t.votes[0].weight = 2.0, "weight"),
             (|t, _| t.votes[0].offset[1] = 3e38, "offset"),
@@ -696,11 +763,17 @@ mod tests {
             let mut g = f.clone();
             edit(&mut g.trees[0], split);
             let e = decode(&encode(&g), "bad.isa").unwrap_err().to_string();
-            assert!(e.contains("bad.isa") && e.contains("tree 0") && e.contains(what), "{e}");
+            assert!(
+                e.contains("bad.isa") && e.contains("tree 0") && e.contains(what),
+                "{e}"
+            );
         }
         // At the bounds: accepted.
         let mut g = f.clone();
-        g.trees[0].nodes[split].feature.u = [crate::features::MAX_FEATURE_OFFSET, -crate::features::MAX_FEATURE_OFFSET];
+        g.trees[0].nodes[split].feature.u = [
+            crate::features::MAX_FEATURE_OFFSET,
+            -crate::features::MAX_FEATURE_OFFSET,
+        ];
         g.trees[0].votes[0].offset = [crate::criterion::MAX_TARGET_OFFSET; 3];
         g.trees[0].votes[0].weight = 0.0;
         g.trees[0].votes[0].rotation = [0.0, 0.0, 0.0, 1.0005];

@@ -81,10 +81,14 @@ impl Manifest {
             path: path.display().to_string(),
             source,
         })?;
-        let bad = |m: String| IsaError::InvalidInput(format!("shard manifest {}: {m}", path.display()));
+        let bad =
+            |m: String| IsaError::InvalidInput(format!("shard manifest {}: {m}", path.display()));
         let m: Manifest = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
         if m.format != MANIFEST_FORMAT {
-            return Err(bad(format!("format {:?}, expected {MANIFEST_FORMAT:?}", m.format)));
+            return Err(bad(format!(
+                "format {:?}, expected {MANIFEST_FORMAT:?}",
+                m.format
+            )));
         }
         if m.version != MANIFEST_VERSION {
             return Err(bad(format!(
@@ -97,7 +101,10 @@ impl Manifest {
         }
         for s in &m.shards {
             if s.file.is_empty() || s.file.contains('/') || s.file.starts_with('.') {
-                return Err(bad(format!("shard file name {:?} is not a plain name in the folder", s.file)));
+                return Err(bad(format!(
+                    "shard file name {:?} is not a plain name in the folder",
+                    s.file
+                )));
             }
         }
         Ok(m)
@@ -146,11 +153,17 @@ pub fn write_manifest(dir: &Path, files: &[String]) -> Result<Manifest> {
         shards: Vec::new(),
     };
     if files.is_empty() {
-        return Err(IsaError::InvalidInput(format!("shards in {}: no shard files given", dir.display())));
+        return Err(IsaError::InvalidInput(format!(
+            "shards in {}: no shard files given",
+            dir.display()
+        )));
     }
     for (k, file) in files.iter().enumerate() {
         let (entry, ts, _) = load_shard(dir, file)?;
-        let widths = (ts.link_angles.as_ref().map(|a| a.1), ts.node_offsets.as_ref().map(|a| a.1));
+        let widths = (
+            ts.link_angles.as_ref().map(|a| a.1),
+            ts.node_offsets.as_ref().map(|a| a.1),
+        );
         if k == 0 {
             (m.link_angles, m.node_offsets) = widths;
         } else if widths != (m.link_angles, m.node_offsets) {
@@ -207,7 +220,10 @@ impl ShardSet {
         let manifest = Manifest::read(dir)?;
         let (p, n_img, px) = (manifest.n_parts(), manifest.n_images(), manifest.n_pixels());
         if p > u32::MAX as usize / 2 || n_img > i32::MAX as usize {
-            return Err(IsaError::InvalidInput(format!("shards in {}: {p} parts is too many", dir.display())));
+            return Err(IsaError::InvalidInput(format!(
+                "shards in {}: {p} parts is too many",
+                dir.display()
+            )));
         }
         let mut set = ShardSet {
             dir: dir.to_path_buf(),
@@ -216,15 +232,24 @@ impl ShardSet {
             offsets: Vec::with_capacity(3 * p),
             rotations: Vec::with_capacity(4 * p),
             files: Vec::new(),
-            links: manifest.link_angles.map(|width| WideColumn { width, pieces: Vec::new() }),
-            nodes: manifest.node_offsets.map(|width| WideColumn { width, pieces: Vec::new() }),
+            links: manifest.link_angles.map(|width| WideColumn {
+                width,
+                pieces: Vec::new(),
+            }),
+            nodes: manifest.node_offsets.map(|width| WideColumn {
+                width,
+                pieces: Vec::new(),
+            }),
             manifest,
         };
         for want in set.manifest.shards.clone() {
             let path = dir.join(&want.file);
             let label = path.display().to_string();
             let size = std::fs::metadata(&path)
-                .map_err(|source| IsaError::Io { path: label.clone(), source })?
+                .map_err(|source| IsaError::Io {
+                    path: label.clone(),
+                    source,
+                })?
                 .len();
             if size != want.bytes {
                 return Err(IsaError::InvalidInput(format!(
@@ -238,7 +263,10 @@ impl ShardSet {
                     "shard {label}: checksum or counts differ from the manifest (replaced since it was written)"
                 )));
             }
-            let widths = (ts.link_angles.as_ref().map(|a| a.1), ts.node_offsets.as_ref().map(|a| a.1));
+            let widths = (
+                ts.link_angles.as_ref().map(|a| a.1),
+                ts.node_offsets.as_ref().map(|a| a.1),
+            );
             if widths != (set.manifest.link_angles, set.manifest.node_offsets) {
                 return Err(IsaError::InvalidInput(format!(
                     "shard {label}: link_angles / node_offsets columns {widths:?}, the manifest says {:?}",
@@ -250,18 +278,35 @@ impl ShardSet {
                 let (w, h) = ts.store.dims(i);
                 set.store.push(w, h, ts.store.image(i).data)?;
             }
-            set.parts.extend(ts.parts.iter().map(|q| [q[0] + first_image, q[1], q[2]]));
+            set.parts
+                .extend(ts.parts.iter().map(|q| [q[0] + first_image, q[1], q[2]]));
             set.offsets.extend_from_slice(&ts.offsets);
             set.rotations.extend_from_slice(&ts.rotations);
             let row = set.parts.len() - ts.parts.len();
             let file = set.files.len();
-            for (name, col) in [("link_angles", &mut set.links), ("node_offsets", &mut set.nodes)] {
+            for (name, col) in [
+                ("link_angles", &mut set.links),
+                ("node_offsets", &mut set.nodes),
+            ] {
                 if let Some(col) = col {
-                    let at = located.iter().find(|(n, _)| n == name).expect("validated above").1.start;
-                    col.pieces.push(Piece { row, rows: ts.parts.len(), file, at: at as u64 });
+                    let at = located
+                        .iter()
+                        .find(|(n, _)| n == name)
+                        .expect("validated above")
+                        .1
+                        .start;
+                    col.pieces.push(Piece {
+                        row,
+                        rows: ts.parts.len(),
+                        file,
+                        at: at as u64,
+                    });
                 }
             }
-            let f = File::open(&path).map_err(|source| IsaError::Io { path: label.clone(), source })?;
+            let f = File::open(&path).map_err(|source| IsaError::Io {
+                path: label.clone(),
+                source,
+            })?;
             set.files.push((path, f));
         }
         Ok(set)
@@ -290,7 +335,10 @@ impl WideTargets for ShardSet {
             buf.resize((b - a) * w * 4, 0u8);
             let (path, f) = &self.files[p.file];
             f.read_exact_at(&mut buf, p.at + ((a - p.row) * w * 4) as u64)
-                .map_err(|source| IsaError::Io { path: path.display().to_string(), source })?;
+                .map_err(|source| IsaError::Io {
+                    path: path.display().to_string(),
+                    source,
+                })?;
             let dst = &mut out[(a - rows.start) * w..(b - rows.start) * w];
             for (d, c) in dst.iter_mut().zip(buf.chunks_exact(4)) {
                 *d = f32::from_le_bytes(c.try_into().expect("4 bytes"));
@@ -335,15 +383,29 @@ pub(crate) mod tests {
         bounds
             .windows(2)
             .map(|b| {
-                let mut s = TrainSetData { metadata: "{}".into(), ..Default::default() };
+                let mut s = TrainSetData {
+                    metadata: "{}".into(),
+                    ..Default::default()
+                };
                 for i in b[0]..b[1] {
                     let (w, h) = ts.store.dims(i);
                     s.store.push(w, h, ts.store.image(i).data).unwrap();
                 }
-                let rows: Vec<usize> =
-                    (0..ts.parts.len()).filter(|&k| (b[0]..b[1]).contains(&(ts.parts[k][0] as usize))).collect();
-                s.parts = rows.iter().map(|&k| { let q = ts.parts[k]; [q[0] - b[0] as i32, q[1], q[2]] }).collect();
-                let take = |a: &[f32], w: usize| -> Vec<f32> { rows.iter().flat_map(|&k| a[k * w..(k + 1) * w].to_vec()).collect() };
+                let rows: Vec<usize> = (0..ts.parts.len())
+                    .filter(|&k| (b[0]..b[1]).contains(&(ts.parts[k][0] as usize)))
+                    .collect();
+                s.parts = rows
+                    .iter()
+                    .map(|&k| {
+                        let q = ts.parts[k];
+                        [q[0] - b[0] as i32, q[1], q[2]]
+                    })
+                    .collect();
+                let take = |a: &[f32], w: usize| -> Vec<f32> {
+                    rows.iter()
+                        .flat_map(|&k| a[k * w..(k + 1) * w].to_vec())
+                        .collect()
+                };
                 s.offsets = take(&ts.offsets, 3);
                 s.rotations = take(&ts.rotations, 4);
                 s.link_angles = ts.link_angles.as_ref().map(|(a, w)| (take(a, *w), *w));
@@ -388,7 +450,10 @@ pub(crate) mod tests {
             assert_eq!(set.store.image(i).data, ts.store.image(i).data);
         }
         // Row ranges across shard boundaries read the same values as the whole arrays.
-        for (term, (a, w)) in [(Term::Links, ts.link_angles.clone().unwrap()), (Term::Nodes, ts.node_offsets.clone().unwrap())] {
+        for (term, (a, w)) in [
+            (Term::Links, ts.link_angles.clone().unwrap()),
+            (Term::Nodes, ts.node_offsets.clone().unwrap()),
+        ] {
             assert_eq!(set.width(term), Some(w));
             for r in [0..5, 1..4, 2..3, 3..5] {
                 let mut out = vec![0f32; r.len() * w];
@@ -409,8 +474,22 @@ pub(crate) mod tests {
         let good = std::fs::read(&shard).unwrap();
         let cases: [(Vec<u8>, &str); 3] = [
             (good[..good.len() - 10].to_vec(), "truncated"),
-            ({ let mut b = good.clone(); b[..8].copy_from_slice(b"NOTISATX"); b }, "not an isa training-set file"),
-            ({ let mut b = good.clone(); b[good.len() - 20] ^= 1; b }, "checksum"),
+            (
+                {
+                    let mut b = good.clone();
+                    b[..8].copy_from_slice(b"NOTISATX");
+                    b
+                },
+                "not an isa training-set file",
+            ),
+            (
+                {
+                    let mut b = good.clone();
+                    b[good.len() - 20] ^= 1;
+                    b
+                },
+                "checksum",
+            ),
         ];
         for (bytes, expect) in cases {
             std::fs::write(&shard, &bytes).unwrap();

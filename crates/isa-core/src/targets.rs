@@ -50,7 +50,11 @@ impl<'a> RawTargets<'a> {
 }
 
 /// Builds the criterion's targets for `quality` from raw arrays in memory (validated here).
-pub fn build_targets(raw: &RawTargets<'_>, quality: Quality, reduce_dims: usize) -> Result<Targets> {
+pub fn build_targets(
+    raw: &RawTargets<'_>,
+    quality: Quality,
+    reduce_dims: usize,
+) -> Result<Targets> {
     raw.validate()?;
     build_targets_from(raw.offsets, raw.rotations, raw, quality, reduce_dims)
 }
@@ -74,18 +78,39 @@ pub fn build_targets_from(
         })
     };
     let mut blocks = vec![
-        Source { term: Term::Offset, raw_width: 3, dim: 3 },
-        Source { term: Term::Rotation, raw_width: 4, dim: 6 },
+        Source {
+            term: Term::Offset,
+            raw_width: 3,
+            dim: 3,
+        },
+        Source {
+            term: Term::Rotation,
+            raw_width: 4,
+            dim: 6,
+        },
     ];
     if quality.uses_q2() {
         let l = need(Term::Links, "link_angles")?;
-        blocks.push(Source { term: Term::Links, raw_width: l, dim: 2 * l });
+        blocks.push(Source {
+            term: Term::Links,
+            raw_width: l,
+            dim: 2 * l,
+        });
     }
     if quality.uses_q3() {
         let w = need(Term::Nodes, "node_offsets")?;
-        blocks.push(Source { term: Term::Nodes, raw_width: w, dim: w });
+        blocks.push(Source {
+            term: Term::Nodes,
+            raw_width: w,
+            dim: w,
+        });
     }
-    let rows = Rows { n, offsets, rotations, wide };
+    let rows = Rows {
+        n,
+        offsets,
+        rotations,
+        wide,
+    };
     // Standardise, then reduce a and s; each block is written straight into its columns.
     let mut plans = Vec::new();
     for src in blocks {
@@ -110,7 +135,8 @@ pub fn build_targets_from(
             let mut e = Vec::new();
             for ((src, mean, scale, basis, dim), b) in plans.iter().zip(&layout.blocks) {
                 rows.standardised(src, range.clone(), mean, scale, &mut e)?;
-                let mut put = |i: usize, j: usize, v: f64| o[i * layout.dim + b.start + j] = v as f32;
+                let mut put =
+                    |i: usize, j: usize, v: f64| o[i * layout.dim + b.start + j] = v as f32;
                 match basis {
                     Some(basis) => {
                         for (i, r) in e.chunks_exact(src.dim).enumerate() {
@@ -131,7 +157,11 @@ pub fn build_targets_from(
             }
             Ok(())
         })?;
-    Ok(Targets { layout, data: out, n })
+    Ok(Targets {
+        layout,
+        data: out,
+        n,
+    })
 }
 
 /// One block of the target vector and the raw array it embeds.
@@ -162,7 +192,11 @@ impl Rows<'_> {
     fn embed(&self, src: &Source, rows: Range<usize>, out: &mut Vec<f64>) -> Result<()> {
         out.clear();
         match src.term {
-            Term::Offset => out.extend(self.offsets[3 * rows.start..3 * rows.end].iter().map(|&v| v as f64)),
+            Term::Offset => out.extend(
+                self.offsets[3 * rows.start..3 * rows.end]
+                    .iter()
+                    .map(|&v| v as f64),
+            ),
             Term::Rotation => {
                 for q in self.rotations[4 * rows.start..4 * rows.end].chunks_exact(4) {
                     out.extend_from_slice(&quat_to_6d(q));
@@ -264,7 +298,13 @@ impl Rows<'_> {
 
     /// The top-`k` principal directions of the standardised block (faer's self-adjoint
     /// eigendecomposition), largest first, each `src.dim` long.
-    fn principal_basis(&self, src: &Source, mean: &[f64], scale: &[f64], k: usize) -> Result<Vec<f64>> {
+    fn principal_basis(
+        &self,
+        src: &Source,
+        mean: &[f64],
+        scale: &[f64],
+        k: usize,
+    ) -> Result<Vec<f64>> {
         let d = src.dim;
         // Upper-triangular second moments, parallel chunks combined in order.
         let tri: Vec<Vec<f64>> = (0..self.n_chunks())
@@ -323,11 +363,21 @@ mod tests {
         let n = raw.n();
         let mut blocks: Vec<(bool, usize, Vec<f64>)> = vec![
             (false, 3, raw.offsets.iter().map(|&v| v as f64).collect()),
-            (false, 6, raw.rotations.chunks_exact(4).flat_map(quat_to_6d).collect()),
+            (
+                false,
+                6,
+                raw.rotations.chunks_exact(4).flat_map(quat_to_6d).collect(),
+            ),
         ];
         if quality.uses_q2() {
             let (a, l) = raw.link_angles.unwrap();
-            blocks.push((true, 2 * l, a.iter().flat_map(|&v| [(v as f64).cos(), (v as f64).sin()]).collect()));
+            blocks.push((
+                true,
+                2 * l,
+                a.iter()
+                    .flat_map(|&v| [(v as f64).cos(), (v as f64).sin()])
+                    .collect(),
+            ));
         }
         if quality.uses_q3() {
             let (s, w) = raw.node_offsets.unwrap();
@@ -337,7 +387,8 @@ mod tests {
         for (wide, d, mut x) in blocks {
             for j in 0..d {
                 let m = (0..n).map(|i| x[i * d + j]).sum::<f64>() / n as f64;
-                let sd = ((0..n).map(|i| (x[i * d + j] - m).powi(2)).sum::<f64>() / n as f64).sqrt();
+                let sd =
+                    ((0..n).map(|i| (x[i * d + j] - m).powi(2)).sum::<f64>() / n as f64).sqrt();
                 let s = if sd < 1e-6 { 1.0 } else { 1.0 / sd };
                 for i in 0..n {
                     x[i * d + j] = (x[i * d + j] - m) * s;
@@ -361,7 +412,10 @@ mod tests {
             }
         }
         (0..n)
-            .flat_map(|i| cols.iter().flat_map(move |(d, x)| x[i * d..(i + 1) * d].iter().map(|&v| v as f32)))
+            .flat_map(|i| {
+                cols.iter()
+                    .flat_map(move |(d, x)| x[i * d..(i + 1) * d].iter().map(|&v| v as f32))
+            })
             .collect()
     }
 
@@ -370,8 +424,15 @@ mod tests {
         // More rows than two chunks, so chunk boundaries and their in-order combination matter.
         let n = 2 * STAT_CHUNK + 123;
         let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let mut g = |lo: f32, hi: f32, k: usize| -> Vec<f32> { (0..k).map(|_| rng.random_range(lo..hi)).collect() };
-        let (off, rot, z, e) = (g(-1.0, 1.0, 3 * n), g(-1.0, 1.0, 4 * n), g(-1.0, 1.0, 2 * n), g(-0.01, 0.01, 11 * n));
+        let mut g = |lo: f32, hi: f32, k: usize| -> Vec<f32> {
+            (0..k).map(|_| rng.random_range(lo..hi)).collect()
+        };
+        let (off, rot, z, e) = (
+            g(-1.0, 1.0, 3 * n),
+            g(-1.0, 1.0, 4 * n),
+            g(-1.0, 1.0, 2 * n),
+            g(-0.01, 0.01, 11 * n),
+        );
         // Unit quaternions, as every training set's rotations must be.
         let rot: Vec<f32> = rot
             .chunks_exact(4)
@@ -382,8 +443,14 @@ mod tests {
             .collect();
         // Wide targets driven by two factors of distinct strength, so the top two principal
         // directions are well separated (PCA is then unique up to sign).
-        let la: Vec<f32> = (0..5 * n).map(|k| (k % 5 + 1) as f32 * (0.3 * z[2 * (k / 5)] + 0.1 * z[2 * (k / 5) + 1]) + e[k]).collect();
-        let no: Vec<f32> = (0..6 * n).map(|k| 20.0 * z[2 * (k / 6)] - (k % 6) as f32 * 4.0 * z[2 * (k / 6) + 1] + e[5 * n + k]).collect();
+        let la: Vec<f32> = (0..5 * n)
+            .map(|k| (k % 5 + 1) as f32 * (0.3 * z[2 * (k / 5)] + 0.1 * z[2 * (k / 5) + 1]) + e[k])
+            .collect();
+        let no: Vec<f32> = (0..6 * n)
+            .map(|k| {
+                20.0 * z[2 * (k / 6)] - (k % 6) as f32 * 4.0 * z[2 * (k / 6) + 1] + e[5 * n + k]
+            })
+            .collect();
         let raw = RawTargets {
             offsets: &off,
             rotations: &rot,
@@ -396,9 +463,13 @@ mod tests {
             assert_eq!(t.data.len(), want.len());
             // The reference sums in another order: equal to float rounding; PCA columns up to sign.
             for (i, (a, b)) in t.data.iter().zip(&want).enumerate() {
-                assert!((a.abs() - b.abs()).abs() < 1e-3, "{q:?} k={k} value {i}: {a} vs {b}");
+                assert!(
+                    (a.abs() - b.abs()).abs() < 1e-3,
+                    "{q:?} k={k} value {i}: {a} vs {b}"
+                );
             }
-            let one = crate::forest::with_threads(Some(1), || build_targets(&raw, q, k).unwrap()).unwrap();
+            let one = crate::forest::with_threads(Some(1), || build_targets(&raw, q, k).unwrap())
+                .unwrap();
             assert_eq!(one.data, t.data, "{q:?}: thread count changed the targets");
         }
     }

@@ -678,8 +678,10 @@ mod tests {
             entries.push((name, kind, b[at + 13 + nl..at + 13 + nl + len].to_vec()));
             at += 13 + nl + len;
         }
-        let mut all: Vec<(&str, u8, &[u8])> =
-            entries.iter().map(|(n, k, d)| (n.as_str(), *k, d.as_slice())).collect();
+        let mut all: Vec<(&str, u8, &[u8])> = entries
+            .iter()
+            .map(|(n, k, d)| (n.as_str(), *k, d.as_slice()))
+            .collect();
         all.extend_from_slice(extra);
         container(&all)
     }
@@ -696,10 +698,19 @@ mod tests {
             b.extend_from_slice(&[0; 8]);
             b
         };
-        let odd = with_entries(&ts, &[("future_f64", 0, &f64_npy), ("future_kind", 7, b"??"), ("notes", 1, b"hi")]);
+        let odd = with_entries(
+            &ts,
+            &[
+                ("future_f64", 0, &f64_npy),
+                ("future_kind", 7, b"??"),
+                ("notes", 1, b"hi"),
+            ],
+        );
         same(&decode(&odd, "x").unwrap(), &ts);
         // A known name of the wrong kind is still an error naming it.
-        let e = decode(&with_entries(&ts, &[("metadata", 0, b"x")]), "x").unwrap_err().to_string();
+        let e = decode(&with_entries(&ts, &[("metadata", 0, b"x")]), "x")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("metadata"), "{e}");
         // Bytes after the last entry (checksum fixed up): refused.
         let mut b = encode(&ts);
@@ -708,7 +719,10 @@ mod tests {
         let sum = fnv1a64(&b);
         b.extend_from_slice(&sum.to_le_bytes());
         let e = decode(&b, "t.isat").unwrap_err().to_string();
-        assert!(e.contains("t.isat") && e.contains("8 unexpected bytes"), "{e}");
+        assert!(
+            e.contains("t.isat") && e.contains("8 unexpected bytes"),
+            "{e}"
+        );
     }
 
     /// Issue 20: rotations of norm 5 or 1e30 were accepted (the docs say unit quaternions).

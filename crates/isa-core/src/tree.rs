@@ -115,7 +115,11 @@ impl Tree {
             if !n.threshold.is_finite() {
                 return Err(format!("node {i}: threshold {} is not finite", n.threshold));
             }
-            if f.u.iter().chain(&f.v).any(|x| x.is_nan() || x.abs() > MAX_FEATURE_OFFSET) {
+            if f.u
+                .iter()
+                .chain(&f.v)
+                .any(|x| x.is_nan() || x.abs() > MAX_FEATURE_OFFSET)
+            {
                 return Err(format!(
                     "node {i}: feature offsets {:?}, {:?} beyond ±{MAX_FEATURE_OFFSET} pixel·metres",
                     f.u, f.v
@@ -123,14 +127,20 @@ impl Tree {
             }
         }
         let lo = &self.leaf_offsets;
-        if lo[0] != 0 || lo.windows(2).any(|w| w[0] > w[1]) || lo[n_leaves] as usize != self.votes.len() {
+        if lo[0] != 0
+            || lo.windows(2).any(|w| w[0] > w[1])
+            || lo[n_leaves] as usize != self.votes.len()
+        {
             return Err("leaf vote ranges are inconsistent".into());
         }
         for (k, v) in self.votes.iter().enumerate() {
             if !(0.0..=1.0).contains(&v.weight) {
                 return Err(format!("vote {k}: weight {} is not in [0, 1]", v.weight));
             }
-            if v.offset.iter().any(|x| x.is_nan() || x.abs() > MAX_TARGET_OFFSET) {
+            if v.offset
+                .iter()
+                .any(|x| x.is_nan() || x.abs() > MAX_TARGET_OFFSET)
+            {
                 return Err(format!(
                     "vote {k}: offset {:?} beyond ±{MAX_TARGET_OFFSET} m",
                     v.offset

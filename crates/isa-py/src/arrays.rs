@@ -154,9 +154,7 @@ impl<'py> Targets<'py> {
         let offsets = f32_array(offsets, "offsets", &[n, Some(3)])?;
         let n = Some(offsets.shape()[0]);
         let per_part = |o: Option<&Bound<'py, PyAny>>, name: &str| {
-            given(o)
-                .map(|o| f32_array(o, name, &[n, None]))
-                .transpose()
+            given(o).map(|o| f32_array(o, name, &[n, None])).transpose()
         };
         Ok(Targets {
             rotations: f32_array(rotations, "rotations", &[n, Some(4)])?,

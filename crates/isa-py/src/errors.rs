@@ -23,7 +23,11 @@ use isa_core::IsaError as CoreError;
 /// Name, bases and docstring of each class, in the order of [`Kind`] (a base before its
 /// subclasses); [`source`] turns them into the Python that defines them.
 const CLASSES: [(&str, &str, &str); 9] = [
-    ("IsaError", "Exception", "Base class of every error raised by isa."),
+    (
+        "IsaError",
+        "Exception",
+        "Base class of every error raised by isa.",
+    ),
     (
         "InvalidInputError",
         "IsaError, ValueError",
@@ -71,7 +75,9 @@ fn source() -> CString {
     let text: String = CLASSES
         .iter()
         .map(|(name, bases, doc)| {
-            format!("class {name}({bases}):\n    \"\"\"{doc}\"\"\"\n    __module__ = \"isa._core\"\n\n")
+            format!(
+                "class {name}({bases}):\n    \"\"\"{doc}\"\"\"\n    __module__ = \"isa._core\"\n\n"
+            )
         })
         .collect();
     CString::new(text).expect("no NUL in the class table")
@@ -94,7 +100,8 @@ static TYPES: PyOnceLock<Vec<Py<PyType>>> = PyOnceLock::new();
 fn types(py: Python<'_>) -> &Vec<Py<PyType>> {
     TYPES
         .get_or_try_init(py, || -> PyResult<Vec<Py<PyType>>> {
-            let m = PyModule::from_code(py, &source(), c"isa/_core/errors.py", c"isa._core._errors")?;
+            let m =
+                PyModule::from_code(py, &source(), c"isa/_core/errors.py", c"isa._core._errors")?;
             CLASSES
                 .iter()
                 .map(|(n, _, _)| Ok(m.getattr(*n)?.cast_into::<PyType>()?.unbind()))

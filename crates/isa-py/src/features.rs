@@ -64,4 +64,3 @@ pub fn depth_features<'py>(
     let out = py.detach(|| isa_core::features::eval_matrix(&store, &parts, &feats));
     Ok(matrix(py, parts.len(), c, out))
 }
-

@@ -22,7 +22,9 @@ use isa_core::shards::{Manifest, ShardSet};
 use isa_core::vote as core_vote;
 use isa_core::{Forest, ForestParams, ModelMetadata, PredictParams, TrainingSet, Valid};
 
-use crate::arrays::{as_slice, depth_store, f32_array, matrix, parts as parts_arg, rows, vector, Targets};
+use crate::arrays::{
+    as_slice, depth_store, f32_array, matrix, parts as parts_arg, rows, vector, Targets,
+};
 use crate::errors::{input_err, to_py};
 use crate::params::{forest_params, json_to_py, kwargs_json};
 use crate::{hypothesis, predict, scalars};
@@ -45,7 +47,11 @@ struct State {
 impl State {
     fn of(f: Forest) -> Self {
         State {
-            params: f.params.clone().check().expect("a forest's parameters are valid"),
+            params: f
+                .params
+                .clone()
+                .check()
+                .expect("a forest's parameters are valid"),
             forest: Some(Arc::new(f)),
         }
     }
@@ -130,7 +136,9 @@ fn tree_hook<'a>(
         if let Some(cb) = on_tree {
             Python::attach(|py| {
                 if let Err(e) = cb.call1(py, (done,)) {
-                    err.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                    err.lock()
+                        .unwrap_or_else(|p| p.into_inner())
+                        .get_or_insert(e);
                 }
             });
         }
@@ -143,7 +151,10 @@ const STATE_UNFITTED: &[u8] = b"ISA-UNFITTED\0";
 impl PyForest {
     #[new]
     #[pyo3(signature = (*, n_threads=None, **params))]
-    fn new(n_threads: Option<&Bound<'_, PyAny>>, params: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+    fn new(
+        n_threads: Option<&Bound<'_, PyAny>>,
+        params: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
         let n_threads = scalars::n_threads(n_threads)?;
         let state = State {
             params: forest_params(params)?,
@@ -175,7 +186,13 @@ impl PyForest {
         let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
         let store = depth_store(images)?;
         let parts = parts_arg(parts)?;
-        let targets = Targets::new(Some(parts.len()), offsets, rotations, link_angles, node_offsets)?;
+        let targets = Targets::new(
+            Some(parts.len()),
+            offsets,
+            rotations,
+            link_angles,
+            node_offsets,
+        )?;
         let raw = targets.raw();
         let params = self.state().params;
         let threads = self.threads();
@@ -186,7 +203,13 @@ impl PyForest {
                 parts: &parts,
                 targets: raw,
             };
-            Forest::fit_with_progress(&params, &data, meta, threads, &tree_hook(&on_tree, &hook_err))
+            Forest::fit_with_progress(
+                &params,
+                &data,
+                meta,
+                threads,
+                &tree_hook(&on_tree, &hook_err),
+            )
         });
         self.finish(params, forest, defaults, hook_err)
     }
@@ -209,7 +232,13 @@ impl PyForest {
         let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
         let forest = py.detach(|| {
             let set = ShardSet::open(&shards)?;
-            Forest::fit_shards(&params, &set, meta, threads, &tree_hook(&on_tree, &hook_err))
+            Forest::fit_shards(
+                &params,
+                &set,
+                meta,
+                threads,
+                &tree_hook(&on_tree, &hook_err),
+            )
         });
         self.finish(params, forest, defaults, hook_err)
     }
@@ -248,7 +277,11 @@ impl PyForest {
     /// Loads a model file; raises ModelFormatError for a bad file, IsaIOError if unreadable.
     #[staticmethod]
     #[pyo3(signature = (path, *, n_threads=None))]
-    fn load(py: Python<'_>, path: &Bound<'_, PyAny>, n_threads: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+    fn load(
+        py: Python<'_>,
+        path: &Bound<'_, PyAny>,
+        n_threads: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
         let path = scalars::path(path, "path")?;
         let n_threads = scalars::n_threads(n_threads)?;
         let f = py.detach(|| Forest::load(&path)).map_err(to_py)?;
@@ -333,9 +366,18 @@ impl PyForest {
             .map_err(to_py)?
             .map_err(to_py)?;
         let d = PyDict::new(py);
-        d.set_item("part", vector(py, votes.iter().map(|v| v.part as i32).collect()))?;
-        d.set_item("tree", vector(py, votes.iter().map(|v| v.tree as i32).collect()))?;
-        d.set_item("weight", vector(py, votes.iter().map(|v| v.vote.weight).collect()))?;
+        d.set_item(
+            "part",
+            vector(py, votes.iter().map(|v| v.part as i32).collect()),
+        )?;
+        d.set_item(
+            "tree",
+            vector(py, votes.iter().map(|v| v.tree as i32).collect()),
+        )?;
+        d.set_item(
+            "weight",
+            vector(py, votes.iter().map(|v| v.vote.weight).collect()),
+        )?;
         d.set_item("offset", rows(py, votes.iter().map(|v| v.vote.offset)))?;
         d.set_item("rotation", rows(py, votes.iter().map(|v| v.vote.rotation)))?;
         Ok(d)
@@ -390,8 +432,15 @@ impl PyForest {
     }
     /// The per-leaf vote weights (one float32 array per tree), or None (one-class).
     #[getter]
-    fn leaf_weights<'py>(&self, py: Python<'py>) -> PyResult<Option<Vec<Bound<'py, PyArray1<f32>>>>> {
-        Ok(self.fitted()?.leaf_weights.as_ref().map(|w| w.per_tree().iter().map(|t| vector(py, t.clone())).collect()))
+    fn leaf_weights<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<Vec<Bound<'py, PyArray1<f32>>>>> {
+        Ok(self
+            .fitted()?
+            .leaf_weights
+            .as_ref()
+            .map(|w| w.per_tree().iter().map(|t| vector(py, t.clone())).collect()))
     }
 
     /// Training configuration as JSON.

@@ -15,8 +15,18 @@ use crate::arrays::describe;
 use crate::errors::type_err;
 
 /// A whole number `>= min` (`usize`); `range` makes the error for a value out of range.
-pub fn count(obj: &Bound<'_, PyAny>, name: &str, min: usize, range: fn(String) -> PyErr) -> PyResult<usize> {
-    let out_of_range = || range(format!("{name} must be an integer >= {min}, got {}", obj.repr().map_or("?".into(), |r| r.to_string())));
+pub fn count(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    min: usize,
+    range: fn(String) -> PyErr,
+) -> PyResult<usize> {
+    let out_of_range = || {
+        range(format!(
+            "{name} must be an integer >= {min}, got {}",
+            obj.repr().map_or("?".into(), |r| r.to_string())
+        ))
+    };
     if obj.is_instance_of::<PyBool>() {
         return Err(type_err(format!("{name}: expected an integer, got bool")));
     }
@@ -24,13 +34,23 @@ pub fn count(obj: &Bound<'_, PyAny>, name: &str, min: usize, range: fn(String) -
         Ok(v) if v >= 0 && v as u64 >= min as u64 => usize::try_from(v).map_err(|_| out_of_range()),
         Ok(_) => Err(out_of_range()),
         Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => Err(out_of_range()),
-        Err(_) => Err(type_err(format!("{name}: expected an integer, got {}", describe(obj)))),
+        Err(_) => Err(type_err(format!(
+            "{name}: expected an integer, got {}",
+            describe(obj)
+        ))),
     }
 }
 
 /// [`count`] of an optional argument (absent or `None` gives `None`).
-pub fn opt_count(obj: Option<&Bound<'_, PyAny>>, name: &str, min: usize, range: fn(String) -> PyErr) -> PyResult<Option<usize>> {
-    crate::arrays::given(obj).map(|o| count(o, name, min, range)).transpose()
+pub fn opt_count(
+    obj: Option<&Bound<'_, PyAny>>,
+    name: &str,
+    min: usize,
+    range: fn(String) -> PyErr,
+) -> PyResult<Option<usize>> {
+    crate::arrays::given(obj)
+        .map(|o| count(o, name, min, range))
+        .transpose()
 }
 
 /// `n_threads`: None (all cores) or at least 1.
@@ -45,9 +65,15 @@ pub fn seed(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<u64> {
     }
     obj.extract::<u64>().map_err(|e| {
         if e.is_instance_of::<PyOverflowError>(obj.py()) {
-            crate::errors::param_err(format!("{name} must be an integer in [0, 2**64), got {}", obj.repr().map_or("?".into(), |r| r.to_string())))
+            crate::errors::param_err(format!(
+                "{name} must be an integer in [0, 2**64), got {}",
+                obj.repr().map_or("?".into(), |r| r.to_string())
+            ))
         } else {
-            type_err(format!("{name}: expected an integer, got {}", describe(obj)))
+            type_err(format!(
+                "{name}: expected an integer, got {}",
+                describe(obj)
+            ))
         }
     })
 }
@@ -66,7 +92,12 @@ pub fn bytes(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<u8>> {
     if !obj.is_instance_of::<PyString>() {
         // Through memoryview rather than the buffer API, which the stable ABI (abi3) lacks
         // before Python 3.11: byte buffers only, as PyBuffer::<u8> accepted.
-        if let Ok(mv) = obj.py().import("builtins")?.getattr("memoryview")?.call1((obj,)) {
+        if let Ok(mv) = obj
+            .py()
+            .import("builtins")?
+            .getattr("memoryview")?
+            .call1((obj,))
+        {
             if mv.getattr("format")?.extract::<String>()? == "B" {
                 let b = mv.call_method0("tobytes")?;
                 return Ok(b.cast::<PyBytes>()?.as_bytes().to_vec());
@@ -81,8 +112,12 @@ pub fn bytes(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<u8>> {
 
 /// A file-system path (`str` or `os.PathLike`).
 pub fn path(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<PathBuf> {
-    obj.extract::<PathBuf>()
-        .map_err(|_| type_err(format!("{name}: expected a path (str or os.PathLike), got {}", describe(obj))))
+    obj.extract::<PathBuf>().map_err(|_| {
+        type_err(format!(
+            "{name}: expected a path (str or os.PathLike), got {}",
+            describe(obj)
+        ))
+    })
 }
 
 /// A `str`.

@@ -19,7 +19,9 @@ use crate::params::forest_params;
 /// order), reading each to validate it; returns the manifest as JSON text. Atomic.
 #[pyfunction]
 pub fn write_shard_manifest(py: Python<'_>, dir: PathBuf, files: Vec<String>) -> PyResult<String> {
-    let m = py.detach(|| shards::write_manifest(&dir, &files)).map_err(to_py)?;
+    let m = py
+        .detach(|| shards::write_manifest(&dir, &files))
+        .map_err(to_py)?;
     Ok(serde_json::to_string(&m).expect("a manifest serialises"))
 }
 
@@ -44,7 +46,9 @@ impl PyShardTrainer {
         params: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         if n_threads == Some(0) {
-            return Err(param_err("n_threads must be at least 1 (or None for all cores)"));
+            return Err(param_err(
+                "n_threads must be at least 1 (or None for all cores)",
+            ));
         }
         let params = forest_params(params)?;
         let (set, prep) = py
@@ -56,7 +60,12 @@ impl PyShardTrainer {
                 })?
             })
             .map_err(to_py)?;
-        Ok(PyShardTrainer { params, set, prep, n_threads })
+        Ok(PyShardTrainer {
+            params,
+            set,
+            prep,
+            n_threads,
+        })
     }
 
     /// Tree ``t`` of the forest, as bytes for ``Forest.assemble`` (the GIL is released).
@@ -64,7 +73,8 @@ impl PyShardTrainer {
         let bytes = py
             .detach(|| {
                 with_threads(self.n_threads, || {
-                    Forest::fit_tree(&self.params, &self.set.inputs(), &self.prep, t).map(|tree| encode_tree(&tree))
+                    Forest::fit_tree(&self.params, &self.set.inputs(), &self.prep, t)
+                        .map(|tree| encode_tree(&tree))
                 })?
             })
             .map_err(to_py)?;

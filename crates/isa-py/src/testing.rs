@@ -16,7 +16,12 @@ use crate::errors::{input_err, param_err, to_py};
 /// The hooks' `targets`: the tuple `(offsets, rotations, link_angles, node_offsets)` of the
 /// arrays `Forest.fit` takes (the last two None when absent).
 fn targets_arg<'py>(targets: &Bound<'py, PyAny>) -> PyResult<Targets<'py>> {
-    type Four<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>);
+    type Four<'py> = (
+        Bound<'py, PyAny>,
+        Bound<'py, PyAny>,
+        Bound<'py, PyAny>,
+        Bound<'py, PyAny>,
+    );
     let (off, rot, la, no): Four<'py> = targets.extract().map_err(|_| {
         input_err(format!(
             "targets: expected (offsets, rotations, link_angles, node_offsets), got {}",
@@ -71,10 +76,7 @@ pub fn criterion_targets<'py>(
     };
     let t = build_targets(&r.raw(), q, reduce_dims).map_err(to_py)?;
     let dims = t.layout.blocks.iter().map(|b| b.dim).collect();
-    Ok((
-        matrix(py, t.n, t.layout.dim, t.data),
-        dims,
-    ))
+    Ok((matrix(py, t.n, t.layout.dim, t.data), dims))
 }
 
 /// Benchmark hook: the forest's split search on precomputed features (P, C) float32 (candidate

@@ -32,7 +32,13 @@ pub fn write_trainset(
 ) -> PyResult<()> {
     let store = depth_store(images)?;
     let parts = parts_arg(parts)?;
-    let t = Targets::new(Some(parts.len()), offsets, rotations, link_angles, node_offsets)?;
+    let t = Targets::new(
+        Some(parts.len()),
+        offsets,
+        rotations,
+        link_angles,
+        node_offsets,
+    )?;
     let raw = t.raw();
     let owned = |a: Option<(&[f32], usize)>| a.map(|(v, c)| (v.to_vec(), c));
     let ts = TrainSetData {

@@ -124,11 +124,7 @@ fn detection_json(d: &scene::Detection) -> Value {
     })
 }
 
-fn to_json(
-    models: &[Model],
-    params: &DetectParams,
-    results: &[FrameResult],
-) -> String {
+fn to_json(models: &[Model], params: &DetectParams, results: &[FrameResult]) -> String {
     let images: Vec<Value> = results
         .iter()
         .map(|FrameResult { job, warnings, cam, out, secs }| {
@@ -210,7 +206,11 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
             .map_err(|e| CliError::input(e.to_string()))
         })
         .collect::<CliResult<Vec<_>>>()?;
-    let pb = bar(a.run.quiet || jobs.len() < 2, jobs.len() as u64, "detecting");
+    let pb = bar(
+        a.run.quiet || jobs.len() < 2,
+        jobs.len() as u64,
+        "detecting",
+    );
     let mut results = Vec::with_capacity(jobs.len());
     for job in jobs {
         let d = inputs::read_depth(&job)?;

@@ -15,7 +15,11 @@ pub fn run(a: InspectArgs) -> CliResult<()> {
         .ok()
         .and_then(|_| isa_core::model_io::file_version(&head))
         .unwrap_or(isa_core::model_io::FORMAT_VERSION);
-    let file = output::ModelFile { path: &a.model, bytes, version };
+    let file = output::ModelFile {
+        path: &a.model,
+        bytes,
+        version,
+    };
     let text = if a.json {
         output::inspect_json(&forest, &file)
     } else {

@@ -178,7 +178,11 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
             a.model.display()
         )));
     }
-    let pb = bar(a.run.quiet || jobs.len() < 2, jobs.len() as u64, "predicting");
+    let pb = bar(
+        a.run.quiet || jobs.len() < 2,
+        jobs.len() as u64,
+        "predicting",
+    );
     let mut results = Vec::with_capacity(jobs.len());
     for job in jobs {
         let d = inputs::read_depth(&job)?;
@@ -188,7 +192,9 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
         };
         let img = DepthImage::new(&d.mm, d.width, d.height)?;
         let t0 = Instant::now();
-        let hyps = with_threads(a.run.threads, || vote::predict(&forest, &img, &job.k, &params))??;
+        let hyps = with_threads(a.run.threads, || {
+            vote::predict(&forest, &img, &job.k, &params)
+        })??;
         let seconds = t0.elapsed().as_secs_f64();
         results.push(ImageResult {
             width: d.width,

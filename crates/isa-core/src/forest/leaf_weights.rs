@@ -20,7 +20,10 @@ impl LeafWeights {
     }
 
     /// [`LeafWeights::new`] with the reason as text (the model decoder words its own error).
-    pub(crate) fn checked(per_tree: Vec<Vec<f32>>, trees: &[Tree]) -> std::result::Result<Self, String> {
+    pub(crate) fn checked(
+        per_tree: Vec<Vec<f32>>,
+        trees: &[Tree],
+    ) -> std::result::Result<Self, String> {
         if per_tree.len() != trees.len() {
             return Err(format!(
                 "leaf weights: {} trees of weights for a forest of {} trees",
@@ -36,8 +39,14 @@ impl LeafWeights {
                     w.len()
                 ));
             }
-            if let Some((l, x)) = w.iter().enumerate().find(|(_, x)| !(0.0..=1.0).contains(*x)) {
-                return Err(format!("leaf weights: tree {t} leaf {l} is {x}, not in [0, 1]"));
+            if let Some((l, x)) = w
+                .iter()
+                .enumerate()
+                .find(|(_, x)| !(0.0..=1.0).contains(*x))
+            {
+                return Err(format!(
+                    "leaf weights: tree {t} leaf {l} is {x}, not in [0, 1]"
+                ));
             }
         }
         Ok(LeafWeights(per_tree))

@@ -316,7 +316,11 @@ impl Forest {
             )));
         }
         // The counts join whatever the trainer said about its data.
-        let extra = metadata.training.take().map(|t| t.extra).unwrap_or_default();
+        let extra = metadata
+            .training
+            .take()
+            .map(|t| t.extra)
+            .unwrap_or_default();
         metadata.training = Some(TrainingSummary {
             extra,
             ..counts.clone()
@@ -335,7 +339,9 @@ impl Forest {
     /// This forest with per-leaf vote weights (one per leaf of each tree, in [0, 1]; see
     /// [`LeafWeights`]), or without any (`None`).
     pub fn with_leaf_weights(mut self, per_tree: Option<Vec<Vec<f32>>>) -> Result<Forest> {
-        self.leaf_weights = per_tree.map(|w| LeafWeights::new(w, &self.trees)).transpose()?;
+        self.leaf_weights = per_tree
+            .map(|w| LeafWeights::new(w, &self.trees))
+            .transpose()?;
         Ok(self)
     }
 
@@ -460,7 +466,13 @@ pub(crate) mod tests {
     fn toy_problem_is_recovered() {
         let (store, parts, off, rot) = toy(2);
         let data = q1_set(&store, &parts, &off, &rot);
-        let f = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), None).unwrap();
+        let f = Forest::fit(
+            &toy_params().check().unwrap(),
+            &data,
+            Default::default(),
+            None,
+        )
+        .unwrap();
         let leaves = f.apply(&store, &parts).unwrap();
         let mut good = 0;
         for (p, row) in leaves.chunks(f.n_trees()).enumerate() {
@@ -495,12 +507,31 @@ pub(crate) mod tests {
             bag_fraction: 0.7,
             ..toy_params()
         };
-        let a = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), Some(1)).unwrap().to_bytes();
-        let b = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), Some(2)).unwrap().to_bytes();
+        let a = Forest::fit(
+            &p.clone().check().unwrap(),
+            &data,
+            Default::default(),
+            Some(1),
+        )
+        .unwrap()
+        .to_bytes();
+        let b = Forest::fit(
+            &p.clone().check().unwrap(),
+            &data,
+            Default::default(),
+            Some(2),
+        )
+        .unwrap()
+        .to_bytes();
         assert_eq!(a, b);
-        let c = Forest::fit(&ForestParams { seed: 1, ..p }.check().unwrap(), &data, Default::default(), Some(2))
-            .unwrap()
-            .to_bytes();
+        let c = Forest::fit(
+            &ForestParams { seed: 1, ..p }.check().unwrap(),
+            &data,
+            Default::default(),
+            Some(2),
+        )
+        .unwrap()
+        .to_bytes();
         assert_ne!(a, c);
     }
 
@@ -513,11 +544,22 @@ pub(crate) mod tests {
             ..toy_params()
         };
         let seen = std::sync::Mutex::new(Vec::new());
-        let with =
-            Forest::fit_with_progress(&p.clone().check().unwrap(), &data, Default::default(), Some(2), &|k| seen.lock().unwrap().push(k))
-                .unwrap();
+        let with = Forest::fit_with_progress(
+            &p.clone().check().unwrap(),
+            &data,
+            Default::default(),
+            Some(2),
+            &|k| seen.lock().unwrap().push(k),
+        )
+        .unwrap();
         assert_eq!(*seen.lock().unwrap(), vec![1, 2, 3]);
-        let without = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), Some(2)).unwrap();
+        let without = Forest::fit(
+            &p.clone().check().unwrap(),
+            &data,
+            Default::default(),
+            Some(2),
+        )
+        .unwrap();
         assert_eq!(with.to_bytes(), without.to_bytes());
     }
 
@@ -525,8 +567,12 @@ pub(crate) mod tests {
     fn toy_trainset(n_images: usize) -> crate::trainset_io::TrainSetData {
         let (store, parts, offsets, rotations) = toy(n_images);
         let p = parts.len();
-        let la: Vec<f32> = (0..2 * p).map(|k| ((k * 7919) % 628) as f32 * 0.01 - std::f32::consts::PI).collect();
-        let no: Vec<f32> = (0..6 * p).map(|k| offsets[(k / 6) * 3 + k % 3] * 100.0 + (k % 6) as f32).collect();
+        let la: Vec<f32> = (0..2 * p)
+            .map(|k| ((k * 7919) % 628) as f32 * 0.01 - std::f32::consts::PI)
+            .collect();
+        let no: Vec<f32> = (0..6 * p)
+            .map(|k| offsets[(k / 6) * 3 + k % 3] * 100.0 + (k % 6) as f32)
+            .collect();
         crate::trainset_io::TrainSetData {
             store,
             parts,
@@ -550,9 +596,12 @@ pub(crate) mod tests {
         }
         .check()
         .unwrap();
-        let whole = Forest::fit(&p, &ts.training_set(), Default::default(), Some(2)).unwrap().to_bytes();
+        let whole = Forest::fit(&p, &ts.training_set(), Default::default(), Some(2))
+            .unwrap()
+            .to_bytes();
         // Shards of 1 and 2 images, opened from disk.
-        let dir = crate::shards::tests::write_shards("fit", &crate::shards::tests::split(&ts, &[1]));
+        let dir =
+            crate::shards::tests::write_shards("fit", &crate::shards::tests::split(&ts, &[1]));
         let set = ShardSet::open(&dir).unwrap();
         let sharded = Forest::fit_shards(&p, &set, Default::default(), Some(1), &|_| {}).unwrap();
         assert_eq!(sharded.to_bytes(), whole);
@@ -561,17 +610,27 @@ pub(crate) mod tests {
         let mut trees: Vec<Tree> = (0..p.n_trees)
             .rev()
             .map(|t| {
-                let b = crate::model_io::encode_tree(&Forest::fit_tree(&p, &set.inputs(), &prep, t).unwrap());
+                let b = crate::model_io::encode_tree(
+                    &Forest::fit_tree(&p, &set.inputs(), &prep, t).unwrap(),
+                );
                 crate::model_io::decode_tree(&b, "tree").unwrap()
             })
             .collect();
         trees.reverse();
         let counts = ShardSet::counts(&set.manifest);
         assert_eq!(counts, prep.counts);
-        assert_eq!(Forest::assemble(&p, trees, Default::default(), &counts).unwrap().to_bytes(), whole);
+        assert_eq!(
+            Forest::assemble(&p, trees, Default::default(), &counts)
+                .unwrap()
+                .to_bytes(),
+            whole
+        );
         assert!(Forest::fit_tree(&p, &set.inputs(), &prep, p.n_trees).is_err());
         let b = crate::model_io::encode_tree(&sharded.trees[0]);
-        assert!(crate::model_io::decode_tree(&b[..b.len() - 1], "tree 0").unwrap_err().to_string().contains("tree 0"));
+        assert!(crate::model_io::decode_tree(&b[..b.len() - 1], "tree 0")
+            .unwrap_err()
+            .to_string()
+            .contains("tree 0"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -587,7 +646,12 @@ pub(crate) mod tests {
             targets: raw,
         };
         assert!(matches!(
-            Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), None),
+            Forest::fit(
+                &toy_params().check().unwrap(),
+                &data,
+                Default::default(),
+                None
+            ),
             Err(IsaError::InvalidInput(_))
         ));
         let data = TrainingSet {
@@ -599,7 +663,9 @@ pub(crate) mod tests {
             quality: crate::params::Quality::Q1Q2,
             ..toy_params()
         };
-        let e = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), None).unwrap_err().to_string();
+        let e = Forest::fit(&p.clone().check().unwrap(), &data, Default::default(), None)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("link_angles"), "{e}");
         let mut nan = off.clone();
         nan[7] = f32::NAN;
@@ -611,9 +677,14 @@ pub(crate) mod tests {
                 ..raw
             },
         };
-        let e = Forest::fit(&toy_params().check().unwrap(), &data, Default::default(), None)
-            .unwrap_err()
-            .to_string();
+        let e = Forest::fit(
+            &toy_params().check().unwrap(),
+            &data,
+            Default::default(),
+            None,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("offsets[2, 1]"), "{e}");
     }
 }

@@ -6,9 +6,9 @@
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+use super::checks::{at_least_one, bad, non_negative, positive};
 use super::overlay::overlay_json;
 use super::Valid;
-use super::checks::{at_least_one, bad, non_negative, positive};
 use crate::error::Result;
 
 /// The Kinect depth tolerance `(base, k)`: `max(base, k z^2)` metres (as

@@ -267,14 +267,20 @@ mod tests {
     #[test]
     fn overlay_parses_quality_and_names_bad_keys() {
         let mut p = ForestParams::default();
-        p.overlay(&serde_json::json!({"quality": "q1 + q3", "n_trees": 3}), "kw")
-            .unwrap();
+        p.overlay(
+            &serde_json::json!({"quality": "q1 + q3", "n_trees": 3}),
+            "kw",
+        )
+        .unwrap();
         assert_eq!((p.quality, p.n_trees), (Quality::Q1Q3, 3));
         let e = p
             .overlay(&serde_json::json!({"quality": "Q2"}), "flags")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("flags: quality:") && e.contains("Q1+Q2+Q3"), "{e}");
+        assert!(
+            e.contains("flags: quality:") && e.contains("Q1+Q2+Q3"),
+            "{e}"
+        );
         let e = p
             .overlay(&serde_json::json!({"n_tree": 3}), "kw")
             .unwrap_err()

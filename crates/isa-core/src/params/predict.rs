@@ -9,8 +9,8 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::overlay::{known_keys, overlay_json};
 use super::checks::{at_least_one, bad};
+use super::overlay::{known_keys, overlay_json};
 use super::Valid;
 use crate::error::{IsaError, Result};
 
@@ -170,7 +170,6 @@ impl PredictParams {
     }
 }
 
-
 impl VoteParams {
     /// The validated parameters (see [`VoteParams::validate`]).
     pub fn check(self) -> Result<Valid<Self>> {
@@ -305,8 +304,11 @@ mod tests {
         a.overlay(&json!({"stride": 2, "position_bandwidth": 0.1}), "kw")
             .unwrap();
         let mut b = PredictParams::default();
-        b.overlay(&json!({"stride": 2, "vote": {"position_bandwidth": 0.1}}), "file")
-            .unwrap();
+        b.overlay(
+            &json!({"stride": 2, "vote": {"position_bandwidth": 0.1}}),
+            "file",
+        )
+        .unwrap();
         assert_eq!(a, b);
         assert_eq!((a.stride, a.vote.position_bandwidth), (2, 0.1));
         assert_eq!(a.vote.max_hypotheses, VoteParams::default().max_hypotheses);
@@ -323,7 +325,10 @@ mod tests {
             .overlay(&json!({"strid": 2}), "flags")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("flags") && e.contains("\"strid\"") && e.contains("\"stride\""), "{e}");
+        assert!(
+            e.contains("flags") && e.contains("\"strid\"") && e.contains("\"stride\""),
+            "{e}"
+        );
         let skipped = p
             .overlay_known(&json!({"stride": 3, "from_the_future": 1}), "model")
             .unwrap();
@@ -347,6 +352,10 @@ mod tests {
             rotation_bandwidth: 4.0,
             ..Default::default()
         };
-        assert!(v.check().unwrap_err().to_string().contains("rotation_bandwidth"));
+        assert!(v
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("rotation_bandwidth"));
     }
 }

@@ -125,10 +125,7 @@ fn largest_patch(along: &[f64], z: &[f64], cell: f64, min_points: usize) -> Vec<
         .iter()
         .map(|x| ((x - amin) / cell) as usize) // >= 0: truncation is the floor
         .collect();
-    let b: Vec<usize> = z
-        .iter()
-        .map(|x| ((x - zmin) / cell) as usize)
-        .collect();
+    let b: Vec<usize> = z.iter().map(|x| ((x - zmin) / cell) as usize).collect();
     let (na, nb) = (a.iter().max().unwrap() + 1, b.iter().max().unwrap() + 1);
     let mut counts = vec![0usize; na * nb];
     for (i, j) in a.iter().zip(&b) {

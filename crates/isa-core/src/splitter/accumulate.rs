@@ -161,7 +161,14 @@ struct Block<'a> {
 /// while it is added into every candidate's bin).
 #[inline(always)]
 fn add_block_lanes<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
-    let Block { z, mp, js: (j0, j1), bins, grp: (c0, g, nb), k0 } = blk;
+    let Block {
+        z,
+        mp,
+        js: (j0, j1),
+        bins,
+        grp: (c0, g, nb),
+        k0,
+    } = blk;
     for j in j0..j1 {
         let zr = &z[j * mp + k0..j * mp + k0 + 8 * W];
         let mut v = [[0f32; 8]; W];
@@ -191,7 +198,14 @@ fn add_block_lanes<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
 #[target_feature(enable = "avx2")]
 unsafe fn add_block_lanes_avx2<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
     use std::arch::x86_64::*;
-    let Block { z, mp, js: (j0, j1), bins, grp: (c0, g, nb), k0 } = blk;
+    let Block {
+        z,
+        mp,
+        js: (j0, j1),
+        bins,
+        grp: (c0, g, nb),
+        k0,
+    } = blk;
     debug_assert!(z.len() >= j1 * mp && part.len() >= g * nb * mp);
     let (sj, sc) = (bins.part_stride, bins.cand_stride);
     let (zp, pp) = (z.as_ptr(), part.as_mut_ptr());
@@ -235,7 +249,14 @@ fn add_block(
     k0: usize,
     part: &mut [f32],
 ) {
-    let blk = Block { z, mp, js, bins, grp, k0 };
+    let blk = Block {
+        z,
+        mp,
+        js,
+        bins,
+        grp,
+        k0,
+    };
     macro_rules! dispatch {
         ($($w:literal)*) => {
             match lanes {
@@ -281,7 +302,18 @@ pub(super) fn accumulate_group(
     let avx2 = std::arch::is_x86_feature_detected!("avx2");
     #[cfg(not(target_arch = "x86_64"))]
     let avx2 = false;
-    accumulate_group_with(avx2, Group { z, m, n, bins, c0, nct, nb })
+    accumulate_group_with(
+        avx2,
+        Group {
+            z,
+            m,
+            n,
+            bins,
+            c0,
+            nct,
+            nb,
+        },
+    )
 }
 
 /// The arguments of [`accumulate_group`], passed on to its AVX2 and portable bodies.
@@ -323,7 +355,15 @@ unsafe fn accumulate_avx2(g: Group<'_>) -> Vec<f64> {
 
 #[inline(always)]
 fn accumulate_body(avx2: bool, g: Group<'_>) -> Vec<f64> {
-    let Group { z, m, n, bins, c0, nct, nb } = g;
+    let Group {
+        z,
+        m,
+        n,
+        bins,
+        c0,
+        nct,
+        nb,
+    } = g;
     let mp = z_stride(m);
     let g = group_size(mp, nb).min(nct.max(1));
     let mut part = AlignedF32::zeros(g * nb * mp);
@@ -411,7 +451,15 @@ mod tests {
                 }
             }
             let z = z.as_slice();
-            let group = |bins, c0, nct| Group { z, m, n, bins, c0, nct, nb };
+            let group = |bins, c0, nct| Group {
+                z,
+                m,
+                n,
+                bins,
+                c0,
+                nct,
+                nb,
+            };
             let reference =
                 accumulate_group_with(false, group(BinMatrix::part_major(&pm, nc), 0, nc));
             // Plain f64 sums of the f32 block sums, the documented order.

@@ -291,7 +291,12 @@ mod tests {
         let off: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
         let rot: Vec<f32> = (0..n)
             .flat_map(|i| {
-                crate::rotation::unit_w_positive(&[1.0, 0.1 * (i % 3) as f32, 0.0, (i % 7) as f32 * 0.1])
+                crate::rotation::unit_w_positive(&[
+                    1.0,
+                    0.1 * (i % 3) as f32,
+                    0.0,
+                    (i % 7) as f32 * 0.1,
+                ])
             })
             .collect();
         let cols: Vec<f32> = (0..n * nc)

@@ -19,13 +19,13 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{find_modes_valid, Hypothesis, PoseVote};
-use crate::params::{PredictParams, Valid};
 use crate::depth::{sample_parts, DepthStore, Part};
 use crate::error::{IsaError, Result};
 use crate::forest::flat::leaves_batched;
 #[cfg(test)]
 use crate::forest::flat::FlatTree;
 use crate::forest::Forest;
+use crate::params::{PredictParams, Valid};
 use crate::tree::Tree;
 
 /// Pinhole intrinsics (pixels), OpenCV convention: pixel centres at integer `(u, v)`.
@@ -463,7 +463,10 @@ mod tests {
                 rotation: [0.0, 0.0, 0.6, 0.8],
             };
             let split = Node {
-                feature: Feature { u: [m, -m], v: [-m, m] },
+                feature: Feature {
+                    u: [m, -m],
+                    v: [-m, m],
+                },
                 threshold: -f32::MAX,
                 child: 1,
                 is_leaf: false,
@@ -477,19 +480,36 @@ mod tests {
             };
             forest
         };
-        let at_bounds = Forest::from_bytes(&make(MAX_FEATURE_OFFSET, MAX_TARGET_OFFSET).to_bytes()).unwrap();
+        let at_bounds =
+            Forest::from_bytes(&make(MAX_FEATURE_OFFSET, MAX_TARGET_OFFSET).to_bytes()).unwrap();
         let huge = make(3e38, 3e38);
         assert!(Forest::from_bytes(&huge.to_bytes()).is_err());
         let (w, h) = (40usize, 30usize);
         let depth: Vec<u16> = (0..w * h).map(|i| [1u16, 65535, 0, 7][i % 4]).collect();
         let img = DepthImage::new(&depth, w, h).unwrap();
-        let k = Intrinsics { fx: 1e-3, fy: 1e6, cx: -0.5, cy: 29.5 };
-        let p = PredictParams { stride: 1, ..Default::default() }.check().unwrap();
+        let k = Intrinsics {
+            fx: 1e-3,
+            fy: 1e6,
+            cx: -0.5,
+            cy: 29.5,
+        };
+        let p = PredictParams {
+            stride: 1,
+            ..Default::default()
+        }
+        .check()
+        .unwrap();
         for forest in [at_bounds, huge] {
             let hyps = predict(&forest, &img, &k, &p).unwrap();
             assert!(!hyps.is_empty());
             for hy in &hyps {
-                assert!(hy.translation.iter().chain(&hy.quaternion).all(|v| v.is_finite()), "{hy:?}");
+                assert!(
+                    hy.translation
+                        .iter()
+                        .chain(&hy.quaternion)
+                        .all(|v| v.is_finite()),
+                    "{hy:?}"
+                );
             }
         }
     }
@@ -505,8 +525,17 @@ mod tests {
     fn toy_forest(seed: u64) -> Forest {
         use crate::forest::tests::{q1_set, toy, toy_params};
         let (store, parts, off, rot) = toy(2);
-        let params = ForestParams { seed, ..toy_params() };
-        Forest::fit(&params.check().unwrap(), &q1_set(&store, &parts, &off, &rot), Default::default(), Some(1)).unwrap()
+        let params = ForestParams {
+            seed,
+            ..toy_params()
+        };
+        Forest::fit(
+            &params.check().unwrap(),
+            &q1_set(&store, &parts, &off, &rot),
+            Default::default(),
+            Some(1),
+        )
+        .unwrap()
     }
 
     /// A 64 x 48 depth ramp every pixel of which is valid, and stride-2 parameters.
@@ -546,10 +575,21 @@ mod tests {
         // Weight of leaf l of tree t: a value in [0, 1] that differs between leaves and trees.
         let lw = |t: usize, l: usize| ((t * 7 + l * 3) % 5) as f32 / 4.0;
         let per_tree = |f: &dyn Fn(usize, usize) -> f32| -> Vec<Vec<f32>> {
-            plain.trees.iter().enumerate().map(|(t, tr)| (0..tr.n_leaves()).map(|l| f(t, l)).collect()).collect()
+            plain
+                .trees
+                .iter()
+                .enumerate()
+                .map(|(t, tr)| (0..tr.n_leaves()).map(|l| f(t, l)).collect())
+                .collect()
         };
-        let ones = plain.clone().with_leaf_weights(Some(per_tree(&|_, _| 1.0))).unwrap();
-        let weighted = plain.clone().with_leaf_weights(Some(per_tree(&lw))).unwrap();
+        let ones = plain
+            .clone()
+            .with_leaf_weights(Some(per_tree(&|_, _| 1.0)))
+            .unwrap();
+        let weighted = plain
+            .clone()
+            .with_leaf_weights(Some(per_tree(&lw)))
+            .unwrap();
         let base = image_votes(&plain, &img, &K, &p).unwrap();
         assert_eq!(image_votes(&ones, &img, &K, &p).unwrap().votes, base.votes);
         let got = image_votes(&weighted, &img, &K, &p).unwrap();
@@ -558,22 +598,41 @@ mod tests {
         let ip = ImageParts::new(&img, p.stride).unwrap();
         let (ds, dparts) = (&ip.store, ip.within(&p).unwrap());
         let leaves = plain.apply(ds, &dparts).unwrap();
-        let index: std::collections::HashMap<(u32, u32), usize> =
-            dparts.iter().enumerate().map(|(i, q)| ((q[1] as u32, q[2] as u32), i)).collect();
+        let index: std::collections::HashMap<(u32, u32), usize> = dparts
+            .iter()
+            .enumerate()
+            .map(|(i, q)| ((q[1] as u32, q[2] as u32), i))
+            .collect();
         let n_t = plain.n_trees();
         let mut zeroed = 0;
-        for ((g, b), (px, t)) in got.votes.iter().zip(&base.votes).zip(got.pixels.iter().zip(&got.trees)) {
+        for ((g, b), (px, t)) in got
+            .votes
+            .iter()
+            .zip(&base.votes)
+            .zip(got.pixels.iter().zip(&got.trees))
+        {
             let i = index[&(px[0], px[1])];
             let leaf = leaves[i * n_t + *t as usize] as usize;
             assert_eq!(g.weight, b.weight * lw(*t as usize, leaf));
             assert_eq!((g.position, g.rotation), (b.position, b.rotation));
             zeroed += usize::from(g.weight == 0.0);
         }
-        assert!(zeroed > 0 && zeroed < got.votes.len(), "the weights must keep some votes and drop others");
+        assert!(
+            zeroed > 0 && zeroed < got.votes.len(),
+            "the weights must keep some votes and drop others"
+        );
         // Bad weights are refused by name.
-        let e = plain.clone().with_leaf_weights(Some(per_tree(&|_, _| 1.5))).unwrap_err().to_string();
+        let e = plain
+            .clone()
+            .with_leaf_weights(Some(per_tree(&|_, _| 1.5)))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("tree 0 leaf 0") && e.contains("1.5"), "{e}");
-        let e = plain.clone().with_leaf_weights(Some(vec![vec![1.0]])).unwrap_err().to_string();
+        let e = plain
+            .clone()
+            .with_leaf_weights(Some(vec![vec![1.0]]))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("trees of weights"), "{e}");
     }
 
@@ -677,7 +736,11 @@ mod tests {
             .to_string()
             .contains("principal point"));
         // No trees, or no valid pixels: no hypotheses.
-        let k = Intrinsics { cx: 2.0, cy: 1.5, ..K };
+        let k = Intrinsics {
+            cx: 2.0,
+            cy: 1.5,
+            ..K
+        };
         assert!(predict(&forest, &img, &k, &Valid::default())
             .unwrap()
             .is_empty());
@@ -727,7 +790,17 @@ mod tests {
             parts: &parts,
             targets,
         };
-        (Forest::fit(&params.clone().check().unwrap(), &data, Default::default(), None).unwrap(), k, poses)
+        (
+            Forest::fit(
+                &params.clone().check().unwrap(),
+                &data,
+                Default::default(),
+                None,
+            )
+            .unwrap(),
+            k,
+            poses,
+        )
     }
 
     #[test]

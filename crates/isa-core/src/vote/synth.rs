@@ -5,8 +5,8 @@
 //! origin = the SSC; camera OpenCV; `X_cam = R X_obj + t`; depth uint16 mm, 0 = missing.
 
 use super::predict::Intrinsics;
-use crate::DepthStore;
 use super::{matrix_to_quat, quat_to_matrix};
+use crate::DepthStore;
 
 /// An axis-aligned box in the object frame: centre and half extents (metres).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -154,7 +154,11 @@ pub fn chair_views(
         let az = i as f64 * std::f64::consts::TAU / n as f64;
         let pose = look_at(az, elevation(i), distance);
         store
-            .push(width, height, &render(&chair, pose.0, pose.1, k, width, height))
+            .push(
+                width,
+                height,
+                &render(&chair, pose.0, pose.1, k, width, height),
+            )
             .expect("a rendered view is a valid image");
         poses.push(pose);
     }

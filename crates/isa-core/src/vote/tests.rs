@@ -287,7 +287,10 @@ fn deterministic_across_runs_and_threads_stable_under_input_order() {
     let b = find_modes(&votes, &p).unwrap();
     assert_eq!(a, b);
     let on_threads = |n| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap();
         pool.install(|| find_modes(&votes, &p).unwrap())
     };
     assert_eq!(a, on_threads(1));
