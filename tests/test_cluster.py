@@ -112,6 +112,22 @@ def test_fit_from_shards_and_on_two_workers_gives_the_in_memory_bytes(shards, ex
     assert got.to_bytes() == expected
 
 
+def _malloc_trim() -> str | None:
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+# Read before any cluster starts: a nanny that sets it also sets it in its own process.
+_TRIM_SET_OUTSIDE = _malloc_trim() is not None
+
+
+def test_local_workers_keep_glibcs_adaptive_malloc(client):
+    # Dask's nannies set MALLOC_TRIM_THRESHOLD_ (which fixes glibc's mmap threshold, and made
+    # the core's large buffers fault in afresh); connect() unsets it for its workers.
+    if _TRIM_SET_OUTSIDE:
+        pytest.skip("MALLOC_TRIM_THRESHOLD_ is set in this environment, and workers inherit it")
+    assert set(client.run(_malloc_trim).values()) == {None}
+
+
 class _KillOnce(distributed.WorkerPlugin):
     """Kills (SIGKILL) the first worker process that starts a tree task, once per marker file."""
 
@@ -140,6 +156,7 @@ def test_a_worker_killed_during_training_still_gives_the_same_bytes(shards, expe
     assert marker.exists(), "no worker was killed"
     assert got.to_bytes() == expected
     client.wait_for_workers(2, timeout=60)
+    assert set(client.run(_malloc_trim).values()) == {None}  # the restarted worker too
 
 
 def test_a_task_failing_on_bad_input_fails_the_job_naming_it(shards, client):

@@ -55,8 +55,16 @@ def connect(scheduler: str | None = None, workers: int = DEFAULT_WORKERS) -> Ite
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise DataError(f"--workers / workers=: a positive number of workers, got {workers!r}")
     dashboard = ":0" if find_spec("bokeh") is not None else None
-    with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                  dashboard_address=dashboard) as cluster, distributed.Client(cluster) as client:
+    import dask
+
+    # Dask's nannies start workers with MALLOC_TRIM_THRESHOLD_=65536, which also turns off
+    # glibc's adaptive mmap threshold: every large buffer of the core is then mmapped and
+    # faulted in afresh, and the tasks spend their time in the kernel (docs/cluster.md, with
+    # the recipe for workers started by hand). None unsets it (distributed's pre-spawn-environ rule).
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                           dashboard_address=dashboard)
+    with cluster, distributed.Client(cluster) as client:
         yield client
 
 
