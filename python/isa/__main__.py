@@ -14,6 +14,7 @@ import sys
 #: command -> (module with ``main(argv)``, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("isa.forest.build", "train a category model from a folder of meshes (or ModelNet10, or procedural)"),
+    "models": ("isa.forest.procedural_models", "build (once) the procedural model of each category: isa without any dataset"),
     "demo": ("isa.demo", "the whole pipeline on procedural furniture, in minutes (report + results.json)"),
     "experiment": ("isa.experiment", "the paper's synthetic experiment (Table 2, left)"),
     "detect-real": ("isa.detection.cli", "3D detection on real SUN RGB-D depth frames (Table 2, right)"),
