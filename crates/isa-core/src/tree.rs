@@ -323,15 +323,47 @@ fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outco
     }
 }
 
+/// Scored parts of a level whose bins are held at once (times `n_candidates` bytes); a level
+/// with more is scored in chunks of whole nodes.
+const LEVEL_BIN_ROWS: usize = 1 << 20;
+
+/// The level's plans in consecutive chunks of at most `level_rows` scored parts (a node with
+/// more, which `max_score_samples` prevents by default, is a chunk of its own).
+fn level_chunks(plans: Vec<Plan>, level_rows: usize) -> Vec<Vec<Plan>> {
+    let mut chunks: Vec<Vec<Plan>> = Vec::new();
+    let mut rows = 0;
+    for pl in plans {
+        if chunks.is_empty() || rows + pl.subset.len() > level_rows {
+            chunks.push(Vec::new());
+            rows = 0;
+        }
+        rows += pl.subset.len();
+        chunks.last_mut().expect("a chunk was pushed").push(pl);
+    }
+    chunks
+}
+
 /// Grows tree number `tree` on the parts `bag` (global indices, ascending).
 ///
 /// Level by level: (1) every node of the level draws its candidates, scored subset and
 /// thresholds; (2) one pass over the level's scored parts **in part (= image) order** evaluates
 /// each part's node candidates into bin indices, so each depth crop is brought into cache once
-/// per level instead of once per node; (3) every node accumulates its statistics and picks its
+/// per level instead of once per node (a level of over [`LEVEL_BIN_ROWS`] scored parts: once
+/// per chunk of its nodes); (3) every node accumulates its statistics and picks its
 /// split; (4) children get breadth-first ids. Phases 1-3 run in parallel. With the environment
 /// variable `ISA_TRACE` set, the wall time of each phase is printed to stderr per tree.
 pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
+    grow_tree(ctx, tree, bag, LEVEL_BIN_ROWS)
+}
+
+/// [`build_tree`] holding the bins of at most `level_rows` scored parts at once (the tree is
+/// the same for any value; tests use small ones).
+pub(crate) fn grow_tree(
+    ctx: &TrainContext<'_>,
+    tree: usize,
+    bag: Vec<u32>,
+    level_rows: usize,
+) -> Tree {
     let placeholder = Node::leaf(0);
     let mut t = Tree {
         nodes: vec![placeholder],
@@ -362,55 +394,64 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
             }
         }
         let t1 = std::time::Instant::now();
-        // (2) the level's scored parts in part order, and their bins.
-        let mut scan: Vec<u32> = Vec::new();
-        for (s, pl) in plans.iter().enumerate() {
-            for &p in &pl.subset {
-                slot_of[p as usize] = s as u32;
+        // (2)-(3) in chunks of whole nodes of at most LEVEL_BIN_ROWS scored parts: the bin
+        // matrix (n_candidates bytes a scored part) is the largest working memory of a level,
+        // and a node's bins and split do not depend on the chunk it falls in.
+        for plans in level_chunks(plans, level_rows) {
+            let c1 = std::time::Instant::now();
+            // (2) the chunk's scored parts in part order, and their bins.
+            let mut scan: Vec<u32> = Vec::new();
+            for (s, pl) in plans.iter().enumerate() {
+                for &p in &pl.subset {
+                    slot_of[p as usize] = s as u32;
+                }
             }
-        }
-        if !plans.is_empty() {
             for (p, s) in slot_of.iter().enumerate() {
                 if *s != u32::MAX {
                     row_of[p] = scan.len() as u32;
                     scan.push(p as u32);
                 }
             }
-        }
-        let t2 = std::time::Instant::now();
-        let mut bins = vec![0u8; scan.len() * nc];
-        {
-            let (store, parts, slot_of, plans) = (ctx.store, ctx.parts, &slot_of, &plans);
-            const ROWS: usize = 512;
-            bins.par_chunks_mut(ROWS * nc)
-                .zip(scan.par_chunks(ROWS))
-                .for_each(|(out, ps)| {
-                    for (row, &p) in out.chunks_exact_mut(nc).zip(ps) {
-                        let pl = &plans[slot_of[p as usize] as usize];
-                        let g = PartGeom::new(store, &parts[p as usize]);
-                        bins_row(&pl.thr, &pl.soa, &pl.cands, &g, row);
+            let c2 = std::time::Instant::now();
+            let mut bins = vec![0u8; scan.len() * nc];
+            {
+                let (store, parts, slot_of, plans) = (ctx.store, ctx.parts, &slot_of, &plans);
+                const ROWS: usize = 512;
+                bins.par_chunks_mut(ROWS * nc)
+                    .zip(scan.par_chunks(ROWS))
+                    .for_each(|(out, ps)| {
+                        for (row, &p) in out.chunks_exact_mut(nc).zip(ps) {
+                            let pl = &plans[slot_of[p as usize] as usize];
+                            let g = PartGeom::new(store, &parts[p as usize]);
+                            bins_row(&pl.thr, &pl.soa, &pl.cands, &g, row);
+                        }
+                    });
+            }
+            for &p in &scan {
+                slot_of[p as usize] = u32::MAX;
+            }
+            let c3 = std::time::Instant::now();
+            // (3) score every node on its rows.
+            let (bins, row_of) = (&bins, &row_of);
+            let scored: Vec<(usize, Outcome)> = plans
+                .into_par_iter()
+                .map(|pl| {
+                    let mut local = vec![0u8; pl.subset.len() * nc];
+                    for (dst, &p) in local.chunks_exact_mut(nc).zip(&pl.subset) {
+                        let r = row_of[p as usize] as usize;
+                        dst.copy_from_slice(&bins[r * nc..(r + 1) * nc]);
                     }
-                });
+                    finish_node(ctx, pl, &local)
+                })
+                .collect();
+            outcomes.extend(scored);
+            let c4 = std::time::Instant::now();
+            tt[1] += (c2 - c1).as_secs_f64();
+            tt[2] += (c3 - c2).as_secs_f64();
+            tt[3] += (c4 - c3).as_secs_f64();
         }
-        for &p in &scan {
-            slot_of[p as usize] = u32::MAX;
-        }
-        let t3 = std::time::Instant::now();
-        // (3) score every node on its rows.
-        let (bins, row_of) = (&bins, &row_of);
-        let scored: Vec<(usize, Outcome)> = plans
-            .into_par_iter()
-            .map(|pl| {
-                let mut local = vec![0u8; pl.subset.len() * nc];
-                for (dst, &p) in local.chunks_exact_mut(nc).zip(&pl.subset) {
-                    let r = row_of[p as usize] as usize;
-                    dst.copy_from_slice(&bins[r * nc..(r + 1) * nc]);
-                }
-                finish_node(ctx, pl, &local)
-            })
-            .collect();
         let t4 = std::time::Instant::now();
-        outcomes.extend(scored);
+        tt[0] += (t1 - t0).as_secs_f64();
         outcomes.sort_by_key(|o| o.0);
         // (4) assemble in node-id order (breadth-first ids).
         let mut next = Vec::new();
@@ -447,10 +488,6 @@ pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
         }
         frontier = next;
         let t5 = std::time::Instant::now();
-        tt[0] += (t1 - t0).as_secs_f64();
-        tt[1] += (t2 - t1).as_secs_f64();
-        tt[2] += (t3 - t2).as_secs_f64();
-        tt[3] += (t4 - t3).as_secs_f64();
         tt[4] += (t5 - t4).as_secs_f64();
         depth += 1;
     }

@@ -29,7 +29,7 @@ from isa.exceptions import DataError
 __all__ = ["SETTINGS", "model_dir", "model_path", "build", "get", "main"]
 
 #: The training of every procedural model (keywords of :func:`isa.forest.build.train_category`).
-SETTINGS: dict = {"procedural": 28, "views": 36, "stride": 8, "trees": 6, "quality": "Q1+Q2+Q3", "seed": 0}
+SETTINGS: dict = {"procedural": 28, "views": 12, "stride": 8, "trees": 6, "quality": "Q1+Q2+Q3", "seed": 0}
 
 
 def model_dir(root: str | os.PathLike | None = None) -> Path:

@@ -499,6 +499,51 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn scoring_a_level_in_chunks_of_nodes_changes_no_tree() {
+        let (store, parts, off, rot) = toy(3);
+        let set = q1_set(&store, &parts, &off, &rot);
+        let p = ForestParams {
+            max_score_samples: 300,
+            bag_fraction: 0.7,
+            ..toy_params()
+        }
+        .check()
+        .unwrap();
+        let inputs = TrainInputs {
+            store: &store,
+            parts: &parts,
+            offsets: &off,
+            rotations: &rot,
+            wide: &set.targets,
+        };
+        let prep = Forest::prepare(&p, &inputs).unwrap();
+        let ctx = TrainContext {
+            params: &p,
+            store: &store,
+            parts: &parts,
+            offsets: &off,
+            rotations: &rot,
+            targets: &prep.targets,
+            crit: &prep.crit,
+        };
+        let bag: Vec<u32> = (0..parts.len() as u32).step_by(2).collect();
+        let whole = build_tree(&ctx, 1, bag.clone());
+        assert!(
+            whole.nodes.len() > 20,
+            "a tree of {} nodes",
+            whole.nodes.len()
+        );
+        // 1 row: every node a chunk of its own; 700: several nodes a chunk.
+        for rows in [1, 700] {
+            assert_eq!(
+                crate::tree::grow_tree(&ctx, 1, bag.clone(), rows),
+                whole,
+                "{rows} rows"
+            );
+        }
+    }
+
+    #[test]
     fn deterministic_across_thread_counts() {
         let (store, parts, off, rot) = toy(2);
         let data = q1_set(&store, &parts, &off, &rot);
