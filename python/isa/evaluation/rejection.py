@@ -75,7 +75,7 @@ def frame_scores(forest, frames: Sequence, shapes=None, category: str | None = N
             share.append(0.0)
         else:
             votes = forest.image_votes(f.depth, f.intrinsics)
-            total = float(np.sum(votes["weights"]))
+            total = float(np.sum(votes["weight"]))
             raw.append(float(hyps[0].score))
             share.append(float(hyps[0].score) / total if total > 0 else 0.0)
         if model is None:
