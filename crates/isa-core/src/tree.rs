@@ -323,22 +323,33 @@ fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outco
     }
 }
 
-/// Scored parts of a level whose bins are held at once (times `n_candidates` bytes); a level
-/// with more is scored in chunks of whole nodes.
+/// Scored parts of a level planned and binned at once (the bins cost `n_candidates` bytes a
+/// scored part, the plans a few kilobytes a node); a larger level goes in chunks of whole nodes.
 const LEVEL_BIN_ROWS: usize = 1 << 20;
+/// Nodes planned at once (each plan holds its candidates and thresholds).
+const LEVEL_NODES: usize = 8192;
 
-/// The level's plans in consecutive chunks of at most `level_rows` scored parts (a node with
-/// more, which `max_score_samples` prevents by default, is a chunk of its own).
-fn level_chunks(plans: Vec<Plan>, level_rows: usize) -> Vec<Vec<Plan>> {
-    let mut chunks: Vec<Vec<Plan>> = Vec::new();
+/// The level's nodes in consecutive chunks of at most `level_rows` parts to score and
+/// [`LEVEL_NODES`] nodes (a node scores at most `max_score_samples`; one with more than
+/// `level_rows` is a chunk of its own).
+fn level_chunks(
+    frontier: Vec<(usize, Vec<u32>)>,
+    level_rows: usize,
+    max_score_samples: usize,
+) -> Vec<Vec<(usize, Vec<u32>)>> {
+    let mut chunks: Vec<Vec<(usize, Vec<u32>)>> = Vec::new();
     let mut rows = 0;
-    for pl in plans {
-        if chunks.is_empty() || rows + pl.subset.len() > level_rows {
+    for node in frontier {
+        let scored = node.1.len().min(max_score_samples);
+        let full = chunks
+            .last()
+            .is_none_or(|c| c.len() >= LEVEL_NODES || rows + scored > level_rows);
+        if full {
             chunks.push(Vec::new());
             rows = 0;
         }
-        rows += pl.subset.len();
-        chunks.last_mut().expect("a chunk was pushed").push(pl);
+        rows += scored;
+        chunks.last_mut().expect("a chunk was pushed").push(node);
     }
     chunks
 }
@@ -348,15 +359,15 @@ fn level_chunks(plans: Vec<Plan>, level_rows: usize) -> Vec<Vec<Plan>> {
 /// Level by level: (1) every node of the level draws its candidates, scored subset and
 /// thresholds; (2) one pass over the level's scored parts **in part (= image) order** evaluates
 /// each part's node candidates into bin indices, so each depth crop is brought into cache once
-/// per level instead of once per node (a level of over [`LEVEL_BIN_ROWS`] scored parts: once
-/// per chunk of its nodes); (3) every node accumulates its statistics and picks its
+/// per level instead of once per node (a level of over [`LEVEL_BIN_ROWS`] scored parts: steps
+/// 1-3 per chunk of its nodes, once per chunk); (3) every node accumulates its statistics and picks its
 /// split; (4) children get breadth-first ids. Phases 1-3 run in parallel. With the environment
 /// variable `ISA_TRACE` set, the wall time of each phase is printed to stderr per tree.
 pub fn build_tree(ctx: &TrainContext<'_>, tree: usize, bag: Vec<u32>) -> Tree {
     grow_tree(ctx, tree, bag, LEVEL_BIN_ROWS)
 }
 
-/// [`build_tree`] holding the bins of at most `level_rows` scored parts at once (the tree is
+/// [`build_tree`] planning and binning at most `level_rows` scored parts at once (the tree is
 /// the same for any value; tests use small ones).
 pub(crate) fn grow_tree(
     ctx: &TrainContext<'_>,
@@ -380,37 +391,41 @@ pub(crate) fn grow_tree(
     let trace = std::env::var_os("ISA_TRACE").is_some();
     let mut tt = [0f64; 5];
     while !frontier.is_empty() {
-        let t0 = std::time::Instant::now();
-        let stages: Vec<Stage> = frontier
-            .into_par_iter()
-            .map(|(id, idx)| plan_node(ctx, tree, id, depth, idx))
-            .collect();
         let mut outcomes: Vec<(usize, Outcome)> = Vec::new();
-        let mut plans: Vec<Plan> = Vec::new();
-        for st in stages {
-            match st {
-                Stage::Done(id, o) => outcomes.push((id, o)),
-                Stage::Score(p) => plans.push(p),
+        // (1)-(3) in chunks of whole nodes of at most `level_rows` scored parts: the plans and
+        // the bin matrix are a level's largest working memory, and a node's plan, bins and
+        // split do not depend on the chunk it falls in.
+        for chunk in level_chunks(frontier, level_rows, ctx.params.max_score_samples) {
+            let c0 = std::time::Instant::now();
+            let stages: Vec<Stage> = chunk
+                .into_par_iter()
+                .map(|(id, idx)| plan_node(ctx, tree, id, depth, idx))
+                .collect();
+            let mut plans: Vec<Plan> = Vec::new();
+            for st in stages {
+                match st {
+                    Stage::Done(id, o) => outcomes.push((id, o)),
+                    Stage::Score(p) => plans.push(p),
+                }
             }
-        }
-        let t1 = std::time::Instant::now();
-        // (2)-(3) in chunks of whole nodes of at most LEVEL_BIN_ROWS scored parts: the bin
-        // matrix (n_candidates bytes a scored part) is the largest working memory of a level,
-        // and a node's bins and split do not depend on the chunk it falls in.
-        for plans in level_chunks(plans, level_rows) {
             let c1 = std::time::Instant::now();
+            tt[0] += (c1 - c0).as_secs_f64();
+            if plans.is_empty() {
+                continue;
+            }
             // (2) the chunk's scored parts in part order, and their bins.
-            let mut scan: Vec<u32> = Vec::new();
+            // (Nodes' subsets are disjoint, so sorting their union gives each part once.)
+            let mut scan: Vec<u32> =
+                Vec::with_capacity(plans.iter().map(|pl| pl.subset.len()).sum());
             for (s, pl) in plans.iter().enumerate() {
                 for &p in &pl.subset {
                     slot_of[p as usize] = s as u32;
                 }
+                scan.extend_from_slice(&pl.subset);
             }
-            for (p, s) in slot_of.iter().enumerate() {
-                if *s != u32::MAX {
-                    row_of[p] = scan.len() as u32;
-                    scan.push(p as u32);
-                }
+            scan.par_sort_unstable();
+            for (row, &p) in scan.iter().enumerate() {
+                row_of[p as usize] = row as u32;
             }
             let c2 = std::time::Instant::now();
             let mut bins = vec![0u8; scan.len() * nc];
@@ -451,7 +466,6 @@ pub(crate) fn grow_tree(
             tt[3] += (c4 - c3).as_secs_f64();
         }
         let t4 = std::time::Instant::now();
-        tt[0] += (t1 - t0).as_secs_f64();
         outcomes.sort_by_key(|o| o.0);
         // (4) assemble in node-id order (breadth-first ids).
         let mut next = Vec::new();
