@@ -838,7 +838,7 @@ fn load_bop_results(text: &str) -> Vec<BopRow> {
                 .map(|v| v.trim().parse().unwrap())
                 .collect()
         };
-        let (r, t) = (nums(e[4]), nums(e[5]));
+        let (r, t) = (floats(e[4]), floats(e[5]));
         assert_eq!((r.len(), t.len()), (9, 3));
         let int = |s: &str| -> u64 { s.trim().parse().unwrap() };
         out.push(BopRow {
