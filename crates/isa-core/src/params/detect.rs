@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use super::checks::{at_least_one, bad, non_negative, positive};
+use super::checks::{at_least_one, bad, named, non_negative, positive};
 use super::overlay::overlay_json;
 use super::Valid;
 use crate::error::Result;
@@ -75,21 +75,13 @@ impl Default for PlaneParams {
 impl PlaneParams {
     pub fn validate(&self) -> Result<()> {
         tolerance("planes.tolerance", self.tolerance)?;
-        for (n, x) in [
-            ("planes.min_floor_fraction", self.min_floor_fraction),
-            ("planes.min_floor_drop", self.min_floor_drop),
-            ("planes.floor_search", self.floor_search),
-            ("planes.min_wall_fraction", self.min_wall_fraction),
-            ("planes.min_wall_height", self.min_wall_height),
-            ("planes.min_wall_width", self.min_wall_width),
-        ] {
+        let fractions_and_lengths = named!(self, "planes.";
+            min_floor_fraction, min_floor_drop, floor_search,
+            min_wall_fraction, min_wall_height, min_wall_width);
+        for (n, x) in fractions_and_lengths {
             non_negative(n, x)?;
         }
-        at_least_one(&[
-            ("planes.ransac_iterations", self.ransac_iterations),
-            ("planes.samples", self.samples),
-            ("planes.check_samples", self.check_samples),
-        ])
+        at_least_one(&named!(self, "planes."; ransac_iterations, samples, check_samples))
     }
 }
 

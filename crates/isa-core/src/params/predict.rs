@@ -9,7 +9,7 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::checks::{at_least_one, bad};
+use super::checks::{at_least_one, bad, named};
 use super::overlay::{known_keys, overlay_json};
 use super::Valid;
 use crate::error::{IsaError, Result};
@@ -92,17 +92,10 @@ impl VoteParams {
                 format!("must be finite and >= 0, got {}", self.nms_radius),
             );
         }
-        at_least_one(&[
-            ("max_hypotheses", self.max_hypotheses),
-            ("max_seeds", self.max_seeds),
-            ("max_iterations", self.max_iterations),
-            ("rotations_per_position", self.rotations_per_position),
-            ("rotation_candidates", self.rotation_candidates),
-            ("rotation_eval_votes", self.rotation_eval_votes),
-            ("coarse_votes", self.coarse_votes),
-            ("refine_modes", self.refine_modes),
-            ("refine_votes", self.refine_votes),
-        ])
+        at_least_one(&named!(self, "";
+            max_hypotheses, max_seeds, max_iterations,
+            rotations_per_position, rotation_candidates, rotation_eval_votes,
+            coarse_votes, refine_modes, refine_votes))
     }
 }
 
