@@ -344,6 +344,7 @@ impl DetectParams {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::expect_err;
     use serde_json::json;
 
     #[test]
@@ -359,21 +360,12 @@ mod tests {
             VerifyParams::default().min_cells
         );
         assert!(p.refine.is_none());
-        let e = p
-            .clone()
-            .overlay(&json!({"verfy": {}}), "kw")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("verfy"), "{e}");
+        expect_err(p.clone().overlay(&json!({"verfy": {}}), "kw"), &["verfy"]);
         p.nms_iou = 1.5;
-        assert!(p.check().unwrap_err().to_string().contains("nms_iou"));
+        expect_err(p.check(), &["nms_iou"]);
         let mut q = DetectParams::default();
         q.overlay(&json!({"planes": {"tolerance": [0.0, 1.0]}}), "kw")
             .unwrap();
-        assert!(q
-            .check()
-            .unwrap_err()
-            .to_string()
-            .contains("planes.tolerance[0]"));
+        expect_err(q.check(), &["planes.tolerance[0]"]);
     }
 }
