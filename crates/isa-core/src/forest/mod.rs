@@ -188,6 +188,8 @@ impl Forest {
         Self::fit_inputs(params, &shards.inputs(), metadata, n_threads, on_tree)
     }
 
+    // The argument list of `fit_with_progress` and `fit_shards` on purpose: both public entry
+    // points end here and differ only in where the data comes from (`duplicates` pairs them).
     fn fit_inputs(
         params: &Valid<ForestParams>,
         data: &TrainInputs<'_>,

@@ -191,6 +191,8 @@ impl RefineParams {
 }
 
 /// The whole detection pipeline (see `isa.detection.multi.DetectParams`).
+// A flat list of typed fields (its JSON form, which the CLI and Python overlay, is this list);
+// `duplicates` pairs runs of it with itself and with other structs by shape alone.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DetectParams {
