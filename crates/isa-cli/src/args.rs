@@ -354,6 +354,9 @@ pub struct DetectArgs {
     /// Output format.
     #[arg(short, long, value_enum, default_value_t = DetectFormat::Json)]
     pub format: DetectFormat,
+    // --output, the flags, --params and the run options are PredictArgs' on purpose (the same
+    // options with this command's own help text, which one flattened struct could not give);
+    // `duplicates` pairs the two lists.
     /// Output file [default: standard output].
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,

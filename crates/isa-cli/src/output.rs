@@ -14,6 +14,7 @@ use crate::commands::predict::ImageJob;
 use crate::error::{CliError, CliResult};
 
 /// The hypotheses of one image.
+// Plain fields (`duplicates` pairs them by shape with the core's `ShardSet`; nothing shared).
 pub struct ImageResult {
     pub job: ImageJob,
     pub width: usize,

@@ -132,9 +132,33 @@ fn err_t(a: &[f64], b: [f64; 3]) -> f64 {
     (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
 }
 
+/// [`test_view`] `i` written to the PNG `name` (in the temporary folder): its path, intrinsics
+/// and true pose.
+fn test_png(i: usize, name: &str) -> (PathBuf, Intrinsics, [[f64; 3]; 3], [f64; 3]) {
+    let (depth, k, r, t) = test_view(i);
+    let png = tmp(name);
+    write_png(&png, 320, 240, depth);
+    (png, k, r, t)
+}
+
+/// Intrinsics of focal length `f` (pixels) in u and v, principal point `(cx, cy)`.
+fn square_pixels(f: f64, cx: f64, cy: f64) -> Intrinsics {
+    Intrinsics {
+        fx: f,
+        fy: f,
+        cx,
+        cy,
+    }
+}
+
+/// The four numbers of `-k FX FY CX CY`.
+fn k_args(k: &Intrinsics) -> [String; 4] {
+    [k.fx, k.fy, k.cx, k.cy].map(|v| v.to_string())
+}
+
 /// `isa predict MODEL PNG -k FX FY CX CY` plus `extra`.
 fn predict_k(model: &str, png: &Path, k: &Intrinsics, extra: &[&str]) -> Output {
-    let kk = [k.fx, k.fy, k.cx, k.cy].map(|v| v.to_string());
+    let kk = k_args(k);
     let mut args = vec!["predict", model, png.to_str().unwrap(), "-k"];
     args.extend(kk.iter().map(String::as_str));
     args.extend_from_slice(extra);
@@ -193,45 +217,16 @@ fn train_inspect_predict_round_trip() {
     assert_eq!(doc["trees"].as_array().unwrap().len(), 4);
 
     // predict: JSON on stdout
-    let (depth, k, r, t) = test_view(5);
-    let png = tmp("view5.png");
-    write_png(&png, 320, 240, depth);
-    let (fx, fy, cx, cy) = (
-        k.fx.to_string(),
-        k.fy.to_string(),
-        k.cx.to_string(),
-        k.cy.to_string(),
-    );
-    let o = isa(&[
-        "predict",
-        m,
-        png.to_str().unwrap(),
-        "-k",
-        &fx,
-        &fy,
-        &cx,
-        &cy,
-        "--stride",
-        "2",
-    ]);
+    let (png, k, r, t) = test_png(5, "view5.png");
+    let o = predict_k(m, &png, &k, &["--stride", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let hyps = doc["images"][0]["hypotheses"].as_array().unwrap();
     assert!(!hyps.is_empty() && hyps.len() <= 5);
     let best = &hyps[0];
-    let tt: Vec<f64> = best["t"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let tt = nums(&best["t"]);
     assert!(err_t(&tt, t) < 0.03, "translation {tt:?} vs {t:?}");
-    let q: Vec<f64> = best["quaternion"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let q = nums(&best["quaternion"]);
     assert!(quat_angle([q[0], q[1], q[2], q[3]], matrix_to_quat(r)).to_degrees() < 5.0);
     let scores: Vec<f64> = hyps.iter().map(|h| h["score"].as_f64().unwrap()).collect();
     assert!(scores.windows(2).all(|w| w[0] >= w[1]));
@@ -249,20 +244,9 @@ fn predict_reads_the_models_defaults_and_flags_win() {
     let m = tmp("defaults.isaf");
     let o = train_q1(&ts, &m, &["--n-trees", "2", "--max-depth", "10"]);
     assert!(o.status.success(), "train failed: {}", stderr(&o));
-    let (depth, k, _, _) = test_view(5);
-    let png = tmp("defaults-view5.png");
-    write_png(&png, 320, 240, depth);
-    let kk = [
-        k.fx.to_string(),
-        k.fy.to_string(),
-        k.cx.to_string(),
-        k.cy.to_string(),
-    ];
+    let (png, k, _, _) = test_png(5, "defaults-view5.png");
     let run = |extra: &[&str]| -> serde_json::Value {
-        let mut args = vec!["predict", m.to_str().unwrap(), png.to_str().unwrap(), "-k"];
-        args.extend(kk.iter().map(|s| s.as_str()));
-        args.extend_from_slice(extra);
-        let o = isa(&args);
+        let o = predict_k(m.to_str().unwrap(), &png, &k, extra);
         assert!(o.status.success(), "{}", stderr(&o));
         serde_json::from_slice(&o.stdout).unwrap()
     };
@@ -358,39 +342,19 @@ fn missing_files_exit_3_naming_them() {
         "0",
         "0",
     ]);
-    assert_eq!(o.status.code(), Some(3));
-    assert!(
-        stderr(&o).contains("/nonexistent/model.isaf") && stderr(&o).contains("does not exist"),
-        "{}",
-        stderr(&o)
-    );
+    expect_exit(&o, 3, &["/nonexistent/model.isaf", "does not exist"]);
     let o = isa(&["inspect", "/nonexistent/model.isaf"]);
-    assert_eq!(o.status.code(), Some(3));
+    expect_exit(&o, 3, &[]);
     let o = isa(&[
         "train",
         "/nonexistent/t.isat",
         "-o",
         tmp("never.isaf").to_str().unwrap(),
     ]);
-    assert_eq!(o.status.code(), Some(3));
-    assert!(stderr(&o).contains("/nonexistent/t.isat"), "{}", stderr(&o));
+    expect_exit(&o, 3, &["/nonexistent/t.isat"]);
     let m = model().to_str().unwrap();
-    let o = isa(&[
-        "predict",
-        m,
-        "/nonexistent/depth.png",
-        "-k",
-        "200",
-        "200",
-        "79.5",
-        "59.5",
-    ]);
-    assert_eq!(o.status.code(), Some(3));
-    assert!(
-        stderr(&o).contains("/nonexistent/depth.png"),
-        "{}",
-        stderr(&o)
-    );
+    let o = predict_k(m, Path::new("/nonexistent/depth.png"), &K, &[]);
+    expect_exit(&o, 3, &["/nonexistent/depth.png"]);
 }
 
 #[test]
@@ -398,12 +362,7 @@ fn corrupt_model_and_trainset_exit_4() {
     let bad = tmp("corrupt.isaf");
     std::fs::write(&bad, b"this is not a model file at all").unwrap();
     let o = isa(&["inspect", bad.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(4));
-    let e = stderr(&o);
-    assert!(
-        e.contains("corrupt.isaf") && e.contains("invalid model file"),
-        "{e}"
-    );
+    expect_exit(&o, 4, &["corrupt.isaf", "invalid model file"]);
     // A real model with one byte flipped: the checksum catches it.
     let mut bytes = std::fs::read(model()).unwrap();
     let n = bytes.len();
@@ -412,18 +371,8 @@ fn corrupt_model_and_trainset_exit_4() {
     std::fs::write(&flipped, bytes).unwrap();
     let png = tmp("small.png");
     write_png(&png, 160, 120, vec![1000; 160 * 120]);
-    let o = isa(&[
-        "predict",
-        flipped.to_str().unwrap(),
-        png.to_str().unwrap(),
-        "-k",
-        "200",
-        "200",
-        "79.5",
-        "59.5",
-    ]);
-    assert_eq!(o.status.code(), Some(4));
-    assert!(stderr(&o).contains("flipped.isaf"), "{}", stderr(&o));
+    let o = predict_k(flipped.to_str().unwrap(), &png, &K, &[]);
+    expect_exit(&o, 4, &["flipped.isaf"]);
     let badts = tmp("corrupt.isat");
     std::fs::write(&badts, b"ISATRAIN garbage").unwrap();
     let o = isa(&[
@@ -432,19 +381,13 @@ fn corrupt_model_and_trainset_exit_4() {
         "-o",
         tmp("never.isaf").to_str().unwrap(),
     ]);
-    assert_eq!(o.status.code(), Some(4));
-    assert!(stderr(&o).contains("corrupt.isat"), "{}", stderr(&o));
+    expect_exit(&o, 4, &["corrupt.isat"]);
 }
 
 #[test]
 fn wrong_images_exit_4_with_reason() {
     let m = model().to_str().unwrap();
-    let k525 = Intrinsics {
-        fx: 525.0,
-        fy: 525.0,
-        cx: 319.5,
-        cy: 239.5,
-    };
+    let k525 = square_pixels(525.0, 319.5, 239.5);
     // Too small for the intrinsics (principal point outside the image).
     let small = tmp("tiny.png");
     write_png(&small, 20, 10, vec![1000; 200]);
@@ -465,12 +408,7 @@ fn wrong_images_exit_4_with_reason() {
     ]);
     expect_exit(&o, 4, &["wide.png", "200x120", "160x120"]);
     // 8-bit PNG; not an image at all.
-    let k20 = Intrinsics {
-        fx: 20.0,
-        fy: 20.0,
-        cx: 7.5,
-        cy: 7.5,
-    };
+    let k20 = square_pixels(20.0, 7.5, 7.5);
     let eight = tmp("eight.png");
     image::GrayImage::from_raw(16, 16, vec![7u8; 256])
         .unwrap()
@@ -552,21 +490,8 @@ fn unwritable_output_is_exit_3_naming_it_and_leaves_nothing() {
         "/nonexistent/dir/out.json".to_string(),
         dir.display().to_string(),
     ] {
-        let o = isa(&[
-            "predict",
-            m,
-            png.to_str().unwrap(),
-            "-k",
-            "200",
-            "200",
-            "79.5",
-            "59.5",
-            "-q",
-            "-o",
-            &out,
-        ]);
-        assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
-        assert!(stderr(&o).contains(&out), "{}", stderr(&o));
+        let o = predict_k(m, &png, &K, &["-q", "-o", &out]);
+        expect_exit(&o, 3, &[out.as_str()]);
     }
     let temps = std::fs::read_dir(dir.parent().unwrap())
         .unwrap()
@@ -581,12 +506,7 @@ fn unwritable_output_is_exit_3_naming_it_and_leaves_nothing() {
     assert_eq!(temps, 0, "no temporary file left");
     let ts = tmp("chair.isat");
     let o = train_q1(&ts, Path::new("/nonexistent/dir/m.isaf"), &[]);
-    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
-    assert!(
-        stderr(&o).contains("/nonexistent/dir/m.isaf"),
-        "{}",
-        stderr(&o)
-    );
+    expect_exit(&o, 3, &["/nonexistent/dir/m.isaf"]);
 }
 
 /// Issue 20: `--position-bandwidth nan` failed with a message naming no flag; `-k` could not
@@ -604,28 +524,17 @@ fn number_flags_name_themselves_and_negative_numbers_parse() {
     ] {
         let arg = format!("{flag}={v}");
         let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", &arg]);
-        assert_eq!(o.status.code(), Some(2), "{flag} {v}: {}", stderr(&o));
-        assert!(
-            stderr(&o).contains(flag) && stderr(&o).contains("finite"),
-            "{}",
-            stderr(&o)
-        );
+        expect_exit(&o, 2, &[flag, "finite"]);
     }
     let ts = tmp("chair.isat");
     let o = train_q1(&ts, &tmp("never.isaf"), &["--bag-fraction", "nan"]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(stderr(&o).contains("--bag-fraction"), "{}", stderr(&o));
+    expect_exit(&o, 2, &["--bag-fraction"]);
     // A negative principal point parses (clap took "-3" for a flag before) and is refused as
     // outside the image: an input error naming the image.
     let o = isa(&["predict", m, p, "-k", "200", "200", "-3", "59.5"]);
-    assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
-    assert!(
-        stderr(&o).contains("principal point") && stderr(&o).contains("flags.png"),
-        "{}",
-        stderr(&o)
-    );
+    expect_exit(&o, 4, &["principal point", "flags.png"]);
     let o = isa(&["predict", m, p, "-k", "200", "200", "79.5", "59.5", "-q"]);
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    expect_exit(&o, 0, &[]);
 }
 
 /// SIGINT while training: the process ends by the signal, the model file is the old one (or
@@ -722,27 +631,12 @@ fn detect_model() -> &'static PathBuf {
     })
 }
 
-fn floats(v: &serde_json::Value) -> Vec<f64> {
-    v.as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect()
-}
-
 #[test]
 fn detect_two_categories_one_object_json_and_bop() {
     let m = detect_model().to_str().unwrap().to_string();
-    let (depth, k, r, t) = test_view(3);
-    let png = tmp("000007.png");
-    write_png(&png, 320, 240, depth);
+    let (png, k, r, t) = test_png(3, "000007.png");
     let g = format!("--gravity={},{},{}", -r[0][2], -r[1][2], -r[2][2]); // the object's -z (down) in the camera
-    let (fx, fy, cx, cy) = (
-        k.fx.to_string(),
-        k.fy.to_string(),
-        k.cx.to_string(),
-        k.cy.to_string(),
-    );
+    let [fx, fy, cx, cy] = k_args(&k);
     let (chair, toilet) = (format!("chair={m}"), format!("toilet={m}"));
     let base = [
         "detect",
@@ -778,11 +672,11 @@ fn detect_two_categories_one_object_json_and_bop() {
     // (refuted ones, score below 0, may stay beside it: their boxes overlap it too little).
     let near: Vec<&serde_json::Value> = dets
         .iter()
-        .filter(|d| err_t(&floats(&d["t"]), t) < 0.3 && d["score"].as_f64().unwrap() > 0.0)
+        .filter(|d| err_t(&nums(&d["t"]), t) < 0.3 && d["score"].as_f64().unwrap() > 0.0)
         .collect();
     assert_eq!(near.len(), 1, "{dets:?}");
     let best = &dets[0];
-    assert!(err_t(&floats(&best["t"]), t) < 0.05, "{best}");
+    assert!(err_t(&nums(&best["t"]), t) < 0.05, "{best}");
     assert!(
         best["score"].as_f64().unwrap() > 0.5 && best["shape"] == 0,
         "{best}"
@@ -824,15 +718,8 @@ fn detect_two_categories_one_object_json_and_bop() {
 #[test]
 fn detect_errors_name_their_cause() {
     let m = detect_model().to_str().unwrap().to_string();
-    let (depth, k, _, _) = test_view(3);
-    let png = tmp("detect_err.png");
-    write_png(&png, 320, 240, depth);
-    let (fx, fy, cx, cy) = (
-        k.fx.to_string(),
-        k.fy.to_string(),
-        k.cx.to_string(),
-        k.cy.to_string(),
-    );
+    let (png, k, _, _) = test_png(3, "detect_err.png");
+    let [fx, fy, cx, cy] = k_args(&k);
     let p = png.to_str().unwrap();
     let run = |extra: &[&str]| {
         let mut a = vec!["detect", p, "-k", &fx, &fy, &cx, &cy, "-q"];
@@ -840,15 +727,12 @@ fn detect_errors_name_their_cause() {
         isa(&a)
     };
     let o = run(&["--model", "nowhere.isa"]);
-    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
-    assert!(stderr(&o).contains("nowhere.isa"));
+    expect_exit(&o, 3, &["nowhere.isa"]);
     let o = run(&["--model", model().to_str().unwrap()]); // trained without a box
-    assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
-    assert!(stderr(&o).contains("box"), "{}", stderr(&o));
+    expect_exit(&o, 4, &["box"]);
     for bad in ["0,0,0", "1,2"] {
         let o = run(&["--model", &m, "--gravity", bad]);
-        assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
-        assert!(stderr(&o).contains("--gravity"));
+        expect_exit(&o, 5, &["--gravity"]);
     }
     let o = run(&[
         "--model",
@@ -856,13 +740,11 @@ fn detect_errors_name_their_cause() {
         "--shapes",
         tmp("no_shapes_here").to_str().unwrap(),
     ]);
-    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
-    assert!(stderr(&o).contains("chair.shapes.isl"), "{}", stderr(&o));
+    expect_exit(&o, 3, &["chair.shapes.isl"]);
     let params = tmp("detect_params.json");
     std::fs::write(&params, r#"{"verify": {"lateral": -1}}"#).unwrap();
     let o = run(&["--model", &m, "--params", params.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(5), "{}", stderr(&o));
-    assert!(stderr(&o).contains("verify.lateral"), "{}", stderr(&o));
+    expect_exit(&o, 5, &["verify.lateral"]);
 }
 
 /// Issue 19: depth in other units with --depth-scale (flag over the camera file), and the
@@ -901,16 +783,9 @@ fn depth_scales_and_transposed_images_warn_or_fail() {
     // A camera file's depth_scale is used; --depth-scale overrides it.
     let cam = tmp("tum-camera.json");
     std::fs::write(&cam, format!(r#"{{"fx": {}, "fy": {}, "cx": {}, "cy": {}, "width": 320, "height": 240, "depth_scale": 0.2}}"#, k.fx, k.fy, k.cx, k.cy)).unwrap();
+    let (tum, cam) = (tum.to_str().unwrap(), cam.to_str().unwrap());
     let run = |extra: &[&str]| {
-        let mut args = vec![
-            "predict",
-            m,
-            tum.to_str().unwrap(),
-            "-c",
-            cam.to_str().unwrap(),
-            "--stride",
-            "2",
-        ];
+        let mut args = vec!["predict", m, tum, "-c", cam, "--stride", "2"];
         args.extend_from_slice(extra);
         isa(&args)
     };
@@ -930,13 +805,7 @@ fn depth_scales_and_transposed_images_warn_or_fail() {
     }
     let trp = tmp("transposed.png");
     write_png(&trp, 240, 320, tr);
-    let o = isa(&[
-        "predict",
-        m,
-        trp.to_str().unwrap(),
-        "-c",
-        cam.to_str().unwrap(),
-    ]);
+    let o = isa(&["predict", m, trp.to_str().unwrap(), "-c", cam]);
     expect_exit(&o, 4, &["transposed.png", "transposed"]);
     let o = predict_k(m, &trp, &k, &[]);
     expect_exit(&o, 0, &["transposed.png", "transposed"]);
@@ -1062,9 +931,7 @@ fn a_bop_split_to_one_results_file_bop_toolkit_reads() {
 #[test]
 fn json_poses_carry_the_4x4_matrix() {
     let m = model().to_str().unwrap();
-    let (depth, k, _, _) = test_view(5);
-    let png = tmp("pose-view5.png");
-    write_png(&png, 320, 240, depth);
+    let (png, k, _, _) = test_png(5, "pose-view5.png");
     let h = best(&predict_k(m, &png, &k, &["--stride", "2"]));
     let rows: Vec<Vec<f64>> = h["pose"].as_array().unwrap().iter().map(nums).collect();
     let r: Vec<Vec<f64>> = h["R"].as_array().unwrap().iter().map(nums).collect();

@@ -24,3 +24,20 @@ pub enum IsaError {
 }
 
 pub type Result<T> = std::result::Result<T, IsaError>;
+
+/// Tests: the message of `r`'s error, asserted to hold every one of `needles`.
+#[cfg(test)]
+#[track_caller]
+pub(crate) fn expect_err<T, E: std::fmt::Display>(
+    r: std::result::Result<T, E>,
+    needles: &[&str],
+) -> String {
+    let e = match r {
+        Ok(_) => panic!("expected an error holding {needles:?}"),
+        Err(e) => e.to_string(),
+    };
+    for n in needles {
+        assert!(e.contains(n), "{n:?} not in: {e}");
+    }
+    e
+}

@@ -132,6 +132,7 @@ pub fn split_metadata(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::expect_err;
     use serde_json::json;
 
     #[test]
@@ -164,12 +165,9 @@ mod tests {
         assert_eq!(m.category.as_deref(), Some("bed"));
         assert!(!m.extra.contains_key(PREDICT_DEFAULTS_KEY));
         assert_eq!((d.stride, d.vote.position_bandwidth), (3, 0.2));
-        let e = split_metadata(r#"{"predict_defaults": {"strde": 3}}"#, "metadata", false)
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("metadata: predict_defaults") && e.contains("\"strde\""),
-            "{e}"
+        expect_err(
+            split_metadata(r#"{"predict_defaults": {"strde": 3}}"#, "metadata", false),
+            &["metadata: predict_defaults", "\"strde\""],
         );
         let (_, d) = split_metadata(
             r#"{"predict_defaults": {"strde": 3, "stride": 2}}"#,
@@ -178,17 +176,14 @@ mod tests {
         )
         .unwrap();
         assert_eq!(d.stride, 2);
-        let e = split_metadata(r#"{"predict_defaults": {"stride": 0}}"#, "m", true)
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("predict_defaults") && e.contains("stride"),
-            "{e}"
+        expect_err(
+            split_metadata(r#"{"predict_defaults": {"stride": 0}}"#, "m", true),
+            &["predict_defaults", "stride"],
         );
-        let e = split_metadata(r#"{"category": 3}"#, "metadata", false)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("metadata") && e.contains("invalid type"), "{e}");
+        expect_err(
+            split_metadata(r#"{"category": 3}"#, "metadata", false),
+            &["metadata", "invalid type"],
+        );
         assert!(split_metadata("[1]", "metadata", false).is_err());
     }
 }

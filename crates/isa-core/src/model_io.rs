@@ -494,6 +494,7 @@ impl Forest {
 mod tests {
     use super::*;
     use crate::criterion::RawTargets;
+    use crate::error::expect_err;
     use crate::forest::tests::{toy, toy_params};
     use crate::forest::TrainingSet;
     use proptest::prelude::*;
@@ -557,33 +558,29 @@ mod tests {
         assert_eq!(decode(&bp, "p.isa").unwrap().leaf_weights, None);
         // A version-3 header on a payload without weights, and weights out of range or for the
         // wrong number of leaves, are refused by name.
-        let e = decode(&seal(3, &bp[HEADER..]), "cut.isa")
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("cut.isa") && e.contains("leaf weights of tree 0"),
-            "{e}"
+        expect_err(
+            decode(&seal(3, &bp[HEADER..]), "cut.isa"),
+            &["cut.isa", "leaf weights of tree 0"],
         );
         let mut payload = bw[HEADER..].to_vec();
         let k = payload.len() - 4;
         payload[k..].copy_from_slice(&1.5f32.to_le_bytes());
-        let e = decode(&seal(3, &payload), "big.isa")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("big.isa") && e.contains("not in [0, 1]"), "{e}");
+        expect_err(
+            decode(&seal(3, &payload), "big.isa"),
+            &["big.isa", "not in [0, 1]"],
+        );
         payload[k..].copy_from_slice(&f32::NAN.to_le_bytes());
-        assert!(decode(&seal(3, &payload), "nan.isa")
-            .unwrap_err()
-            .to_string()
-            .contains("non-finite"));
+        expect_err(decode(&seal(3, &payload), "nan.isa"), &["non-finite"]);
         let n0 = f.trees[0].n_leaves();
         let mut short = bp[HEADER..].to_vec();
         for t in &f.trees {
             short.extend_from_slice(&((t.n_leaves() - 1) as u32).to_le_bytes());
             short.extend(std::iter::repeat_n(0u8, 4 * (t.n_leaves() - 1)));
         }
-        let e = decode(&seal(3, &short), "few.isa").unwrap_err().to_string();
-        assert!(e.contains(&format!("tree 0 has {n0} leaves")), "{e}");
+        expect_err(
+            decode(&seal(3, &short), "few.isa"),
+            &[&format!("tree 0 has {n0} leaves")],
+        );
     }
 
     fn is_format_err(r: Result<Forest>) -> bool {
@@ -620,23 +617,14 @@ mod tests {
         }
         let mut foreign = b.clone();
         foreign[0] = b'P';
-        assert!(decode(&foreign, "f")
-            .unwrap_err()
-            .to_string()
-            .contains("magic"));
+        expect_err(decode(&foreign, "f"), &["magic"]);
         let mut newer = b.clone();
         newer[8..12].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
-        assert!(decode(&newer, "n")
-            .unwrap_err()
-            .to_string()
-            .contains("newer"));
+        expect_err(decode(&newer, "n"), &["newer"]);
         let mut flipped = b.clone();
         let k = flipped.len() - 3;
         flipped[k] ^= 0x40;
-        assert!(decode(&flipped, "c")
-            .unwrap_err()
-            .to_string()
-            .contains("checksum"));
+        expect_err(decode(&flipped, "c"), &["checksum"]);
     }
 
     fn reseal(payload: &[u8]) -> Vec<u8> {
@@ -707,15 +695,12 @@ mod tests {
             );
         }
         // Bad inference defaults in an old file are a format error naming them.
-        let e = decode(
-            &version_1_file(&f, r#"{"predict_defaults": {"stride": 0}}"#),
-            "old",
-        )
-        .unwrap_err()
-        .to_string();
-        assert!(
-            e.contains("predict_defaults") && e.contains("stride"),
-            "{e}"
+        expect_err(
+            decode(
+                &version_1_file(&f, r#"{"predict_defaults": {"stride": 0}}"#),
+                "old",
+            ),
+            &["predict_defaults", "stride"],
         );
     }
 
@@ -762,11 +747,7 @@ mod tests {
         for (edit, what) in cases {
             let mut g = f.clone();
             edit(&mut g.trees[0], split);
-            let e = decode(&encode(&g), "bad.isa").unwrap_err().to_string();
-            assert!(
-                e.contains("bad.isa") && e.contains("tree 0") && e.contains(what),
-                "{e}"
-            );
+            expect_err(decode(&encode(&g), "bad.isa"), &["bad.isa", "tree 0", what]);
         }
         // At the bounds: accepted.
         let mut g = f.clone();

@@ -585,6 +585,7 @@ pub fn read(path: &Path) -> Result<TrainSetData> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::expect_err;
 
     fn sample() -> TrainSetData {
         let mut store = DepthStore::new();
@@ -708,21 +709,17 @@ mod tests {
         );
         same(&decode(&odd, "x").unwrap(), &ts);
         // A known name of the wrong kind is still an error naming it.
-        let e = decode(&with_entries(&ts, &[("metadata", 0, b"x")]), "x")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("metadata"), "{e}");
+        expect_err(
+            decode(&with_entries(&ts, &[("metadata", 0, b"x")]), "x"),
+            &["metadata"],
+        );
         // Bytes after the last entry (checksum fixed up): refused.
         let mut b = encode(&ts);
         b.truncate(b.len() - 8);
         b.extend_from_slice(b"trailing");
         let sum = fnv1a64(&b);
         b.extend_from_slice(&sum.to_le_bytes());
-        let e = decode(&b, "t.isat").unwrap_err().to_string();
-        assert!(
-            e.contains("t.isat") && e.contains("8 unexpected bytes"),
-            "{e}"
-        );
+        expect_err(decode(&b, "t.isat"), &["t.isat", "8 unexpected bytes"]);
     }
 
     /// Issue 20: rotations of norm 5 or 1e30 were accepted (the docs say unit quaternions).
@@ -745,8 +742,7 @@ mod tests {
         }
         let mut ts = sample();
         ts.offsets[4] = 2e3;
-        let e = decode(&encode(&ts), "o.isat").unwrap_err().to_string();
-        assert!(e.contains("offsets[1, 1]"), "{e}");
+        expect_err(decode(&encode(&ts), "o.isat"), &["offsets[1, 1]"]);
     }
 
     #[test]
@@ -772,8 +768,7 @@ mod tests {
                 "version 9",
             ),
         ] {
-            let e = decode(&b, "f.isat").unwrap_err().to_string();
-            assert!(e.contains("f.isat") && e.contains(expect), "{e}");
+            expect_err(decode(&b, "f.isat"), &["f.isat", expect]);
         }
         // Every truncation and single-byte change with a re-computed checksum: error or ok, no panic.
         for cut in (0..bytes.len()).step_by(7) {
@@ -788,11 +783,7 @@ mod tests {
         // Parts on missing depth are caught by validation, with the array named.
         let mut ts = sample();
         ts.parts[0] = [0, 0, 0];
-        assert!(write(&ts, Path::new("/nonexistent/x.isat"))
-            .unwrap_err()
-            .to_string()
-            .contains("parts[0]"));
-        let e = decode(&encode(&ts), "f").unwrap_err().to_string();
-        assert!(e.contains("parts[0]"), "{e}");
+        expect_err(write(&ts, Path::new("/nonexistent/x.isat")), &["parts[0]"]);
+        expect_err(decode(&encode(&ts), "f"), &["parts[0]"]);
     }
 }

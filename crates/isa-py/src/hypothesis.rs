@@ -75,6 +75,8 @@ impl PyHypothesis {
     fn quaternion<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         vector(py, self.h.quaternion.to_vec())
     }
+    // One getter per scalar field (pyo3 makes each its own descriptor); `duplicates` pairs
+    // their like shapes, and there is nothing between them to share.
     #[getter]
     fn score(&self) -> f64 {
         self.h.score

@@ -78,10 +78,19 @@ pub fn seed(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<u64> {
     })
 }
 
+/// `obj` as a `T`, or "`name`: expected `what`, got ..." as an `InvalidTypeError`.
+fn typed<'py, T: FromPyObjectOwned<'py>>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    what: &str,
+) -> PyResult<T> {
+    obj.extract::<T>()
+        .map_err(|_| type_err(format!("{name}: expected {what}, got {}", describe(obj))))
+}
+
 /// A real number (int or float, NumPy scalars included).
 pub fn number(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
-    obj.extract::<f64>()
-        .map_err(|_| type_err(format!("{name}: expected a number, got {}", describe(obj))))
+    typed(obj, name, "a number")
 }
 
 /// The bytes of a `bytes`, `bytearray`, `memoryview` or other buffer of bytes.
@@ -112,16 +121,10 @@ pub fn bytes(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<u8>> {
 
 /// A file-system path (`str` or `os.PathLike`).
 pub fn path(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<PathBuf> {
-    obj.extract::<PathBuf>().map_err(|_| {
-        type_err(format!(
-            "{name}: expected a path (str or os.PathLike), got {}",
-            describe(obj)
-        ))
-    })
+    typed(obj, name, "a path (str or os.PathLike)")
 }
 
 /// A `str`.
 pub fn text(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<String> {
-    obj.extract::<String>()
-        .map_err(|_| type_err(format!("{name}: expected a str, got {}", describe(obj))))
+    typed(obj, name, "a str")
 }

@@ -297,6 +297,9 @@ pub fn verify_pose<'py>(
 /// Upright ICP of a shape (`shape_points` (N, 3), `bounds` (2, 3), `normals` (N, 3) or None)
 /// from `(R, t)` on upright-frame points `points_up` (M, 3) of a `width` x `height` camera:
 /// `{"R", "t", "rms", "pairs", "yaw_change", "shift", "converged"}`.
+// Its argument list looks like other bindings' to `duplicates` (`Forest.fit`, `write_trainset`): each Python
+// argument is its own `&Bound<PyAny>`, checked in the body so that errors name it; the lists are
+// the public signatures, not repeated logic.
 #[pyfunction]
 #[pyo3(signature = (points_up, K, width, height, R, t, shape_points, bounds, R_gravity, params=None, normals=None))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
@@ -364,6 +367,9 @@ pub fn nms_across(boxes: &Bound<'_, PyAny>, iou: f64, overlap: f64) -> PyResult<
 /// `gravity` (3, 3) camera -> upright or None; `removed` (H, W) bool planes found beforehand
 /// (with `planes`, their list) or None; `params` a DetectParams dict. Returns `{"detections":
 /// [dict], "gravity", "gravity_source", "floor_height", "planes", "removed", "seconds"}`.
+// Its argument list looks like other bindings' to `duplicates` (`find_planes`, `find_modes`): each Python
+// argument is its own `&Bound<PyAny>`, checked in the body so that errors name it; the lists are
+// the public signatures, not repeated logic.
 #[pyfunction]
 #[pyo3(signature = (depth, K, models, gravity=None, planes=None, params=None))]
 #[allow(non_snake_case)]

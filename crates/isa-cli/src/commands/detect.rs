@@ -10,13 +10,12 @@ use isa_core::scene::gravity::rotation_from_up;
 use isa_core::scene::{self, Camera, DetectOutput, SceneModel, ShapeLibrary};
 use isa_core::{DetectParams, Forest, Valid};
 
-use super::predict::{image_jobs, ImageJob};
+use super::predict::{each_image, image_jobs, ImageJob};
 use super::{flags_json, load_model, params_file, FLAGS};
 use crate::args::{DetectArgs, DetectFormat};
 use crate::error::{CliError, CliResult};
-use crate::inputs;
 use crate::output;
-use crate::progress::{bar, spinner, with_threads};
+use crate::progress::{spinner, with_threads};
 
 /// One `--model` with what it needs.
 struct Model {
@@ -206,14 +205,7 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
             .map_err(|e| CliError::input(e.to_string()))
         })
         .collect::<CliResult<Vec<_>>>()?;
-    let pb = bar(
-        a.run.quiet || jobs.len() < 2,
-        jobs.len() as u64,
-        "detecting",
-    );
-    let mut results = Vec::with_capacity(jobs.len());
-    for job in jobs {
-        let d = inputs::read_depth(&job)?;
+    let results = each_image(jobs, a.run.quiet, "detecting", |job, d| {
         let metres: Vec<f32> = d.mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
         let cam = Camera::new(job.k, d.width, d.height)?;
         let t0 = std::time::Instant::now();
@@ -221,16 +213,14 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
             scene::detect(&metres, cam, &scene_models, g, None, &params)
         })??;
         let secs = t0.elapsed().as_secs_f64();
-        results.push(FrameResult {
+        Ok(FrameResult {
             job,
             warnings: d.warnings,
             cam,
             out,
             secs,
-        });
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
+        })
+    })?;
     let text = match a.format {
         DetectFormat::Json => to_json(&models, &params, &results),
         DetectFormat::Bop => to_bop(&models, &ids, a.scene_id, &results)?,

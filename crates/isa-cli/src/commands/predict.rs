@@ -163,6 +163,25 @@ fn obj_id(a: &PredictArgs, forest: &isa_core::Forest, job: &ImageJob) -> CliResu
     }
 }
 
+/// `each(job, its depth image)` for every job in order, behind a progress bar saying `what`
+/// (shown for two or more images unless `quiet`); the first error ends the run.
+pub fn each_image<R>(
+    jobs: Vec<ImageJob>,
+    quiet: bool,
+    what: &str,
+    mut each: impl FnMut(ImageJob, inputs::Depth) -> CliResult<R>,
+) -> CliResult<Vec<R>> {
+    let pb = bar(quiet || jobs.len() < 2, jobs.len() as u64, what);
+    let mut results = Vec::with_capacity(jobs.len());
+    for job in jobs {
+        let d = inputs::read_depth(&job)?;
+        results.push(each(job, d)?);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    Ok(results)
+}
+
 pub fn run(a: PredictArgs) -> CliResult<()> {
     let mut sources: Vec<(Value, String)> = params_file(a.params.as_deref())?.into_iter().collect();
     sources.push((flags_json(&a.flags), FLAGS.to_string()));
@@ -178,14 +197,7 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
             a.model.display()
         )));
     }
-    let pb = bar(
-        a.run.quiet || jobs.len() < 2,
-        jobs.len() as u64,
-        "predicting",
-    );
-    let mut results = Vec::with_capacity(jobs.len());
-    for job in jobs {
-        let d = inputs::read_depth(&job)?;
+    let results = each_image(jobs, a.run.quiet, "predicting", |job, d| {
         let obj_id = match a.format {
             crate::args::Format::Bop => Some(obj_id(&a, &forest, &job)?),
             crate::args::Format::Json => None,
@@ -196,7 +208,7 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
             vote::predict(&forest, &img, &job.k, &params)
         })??;
         let seconds = t0.elapsed().as_secs_f64();
-        results.push(ImageResult {
+        Ok(ImageResult {
             width: d.width,
             height: d.height,
             warnings: d.warnings,
@@ -204,10 +216,8 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
             job,
             hyps,
             seconds,
-        });
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
+        })
+    })?;
     match a.format {
         crate::args::Format::Json => output::write(
             a.output.as_deref(),

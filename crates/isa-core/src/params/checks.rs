@@ -23,6 +23,15 @@ pub(super) fn non_negative(name: &str, x: f64) -> Result<()> {
     }
 }
 
+/// `[(prefix + "field", self.field), ...]`: fields with the names their errors give, for
+/// [`at_least_one`] and loops over one check.
+macro_rules! named {
+    ($s:expr, $prefix:literal; $($f:ident),+ $(,)?) => {
+        [$((concat!($prefix, stringify!($f)), $s.$f)),+]
+    };
+}
+pub(super) use named;
+
 /// Each `(name, count)` is at least 1.
 pub(super) fn at_least_one(counts: &[(&str, usize)]) -> Result<()> {
     match counts.iter().find(|(_, v)| *v == 0) {

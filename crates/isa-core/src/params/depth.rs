@@ -56,6 +56,7 @@ impl DepthParams {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::expect_err;
     use serde_json::json;
 
     #[test]
@@ -65,19 +66,18 @@ mod tests {
         let mut p = DepthParams::default();
         p.overlay(&json!({"depth_scale": 0.2}), "flags").unwrap();
         assert_eq!((p.mm_per_unit(false), p.mm_per_unit(true)), (0.2, 0.2));
-        let e = p
-            .overlay(&json!({"scale": 1}), "flags")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("flags") && e.contains("\"scale\""), "{e}");
+        expect_err(
+            p.overlay(&json!({"scale": 1}), "flags"),
+            &["flags", "\"scale\""],
+        );
         for bad in [0.0, -1.0, 1e9] {
-            let e = DepthParams {
-                depth_scale: Some(bad),
-            }
-            .check()
-            .unwrap_err()
-            .to_string();
-            assert!(e.contains("depth_scale"), "{e}");
+            expect_err(
+                DepthParams {
+                    depth_scale: Some(bad),
+                }
+                .check(),
+                &["depth_scale"],
+            );
         }
     }
 }

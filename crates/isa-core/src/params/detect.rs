@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use super::checks::{at_least_one, bad, non_negative, positive};
+use super::checks::{at_least_one, bad, named, non_negative, positive};
 use super::overlay::overlay_json;
 use super::Valid;
 use crate::error::Result;
@@ -75,21 +75,13 @@ impl Default for PlaneParams {
 impl PlaneParams {
     pub fn validate(&self) -> Result<()> {
         tolerance("planes.tolerance", self.tolerance)?;
-        for (n, x) in [
-            ("planes.min_floor_fraction", self.min_floor_fraction),
-            ("planes.min_floor_drop", self.min_floor_drop),
-            ("planes.floor_search", self.floor_search),
-            ("planes.min_wall_fraction", self.min_wall_fraction),
-            ("planes.min_wall_height", self.min_wall_height),
-            ("planes.min_wall_width", self.min_wall_width),
-        ] {
+        let fractions_and_lengths = named!(self, "planes.";
+            min_floor_fraction, min_floor_drop, floor_search,
+            min_wall_fraction, min_wall_height, min_wall_width);
+        for (n, x) in fractions_and_lengths {
             non_negative(n, x)?;
         }
-        at_least_one(&[
-            ("planes.ransac_iterations", self.ransac_iterations),
-            ("planes.samples", self.samples),
-            ("planes.check_samples", self.check_samples),
-        ])
+        at_least_one(&named!(self, "planes."; ransac_iterations, samples, check_samples))
     }
 }
 
@@ -199,6 +191,8 @@ impl RefineParams {
 }
 
 /// The whole detection pipeline (see `isa.detection.multi.DetectParams`).
+// A flat list of typed fields (its JSON form, which the CLI and Python overlay, is this list);
+// `duplicates` pairs runs of it with itself and with other structs by shape alone.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DetectParams {
@@ -352,6 +346,7 @@ impl DetectParams {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::expect_err;
     use serde_json::json;
 
     #[test]
@@ -367,21 +362,12 @@ mod tests {
             VerifyParams::default().min_cells
         );
         assert!(p.refine.is_none());
-        let e = p
-            .clone()
-            .overlay(&json!({"verfy": {}}), "kw")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("verfy"), "{e}");
+        expect_err(p.clone().overlay(&json!({"verfy": {}}), "kw"), &["verfy"]);
         p.nms_iou = 1.5;
-        assert!(p.check().unwrap_err().to_string().contains("nms_iou"));
+        expect_err(p.check(), &["nms_iou"]);
         let mut q = DetectParams::default();
         q.overlay(&json!({"planes": {"tolerance": [0.0, 1.0]}}), "kw")
             .unwrap();
-        assert!(q
-            .check()
-            .unwrap_err()
-            .to_string()
-            .contains("planes.tolerance[0]"));
+        expect_err(q.check(), &["planes.tolerance[0]"]);
     }
 }

@@ -99,6 +99,7 @@ fn set(v: &mut Value, path: &str, val: Value) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::expect_err;
     use serde::Deserialize;
     use serde_json::json;
 
@@ -134,28 +135,25 @@ mod tests {
 
     #[test]
     fn errors_name_the_key_and_the_source() {
-        let e = overlay_json(&BASE, &json!({"zz": 1}), "flags")
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("flags") && e.contains("\"zz\"") && e.contains("\"inner\""),
-            "{e}"
+        expect_err(
+            overlay_json(&BASE, &json!({"zz": 1}), "flags"),
+            &["flags", "\"zz\"", "\"inner\""],
         );
-        let e = overlay_json(&BASE, &json!({"inner": {"c": 1}}), "file x")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("file x") && e.contains("\"inner.c\""), "{e}");
-        let e = overlay_json(&BASE, &json!({"o": 1.0, "a": -2}), "kw")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("kw: a:") && e.contains("-2"), "{e}");
-        let e = overlay_json(&BASE, &json!({"inner": 3}), "kw")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("kw: inner: expected a JSON object"), "{e}");
-        let e = overlay_json(&BASE, &json!([1]), "kw")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("kw: expected a JSON object"), "{e}");
+        expect_err(
+            overlay_json(&BASE, &json!({"inner": {"c": 1}}), "file x"),
+            &["file x", "\"inner.c\""],
+        );
+        expect_err(
+            overlay_json(&BASE, &json!({"o": 1.0, "a": -2}), "kw"),
+            &["kw: a:", "-2"],
+        );
+        expect_err(
+            overlay_json(&BASE, &json!({"inner": 3}), "kw"),
+            &["kw: inner: expected a JSON object"],
+        );
+        expect_err(
+            overlay_json(&BASE, &json!([1]), "kw"),
+            &["kw: expected a JSON object"],
+        );
     }
 }

@@ -9,7 +9,7 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::checks::{at_least_one, bad};
+use super::checks::{at_least_one, bad, named};
 use super::overlay::{known_keys, overlay_json};
 use super::Valid;
 use crate::error::{IsaError, Result};
@@ -92,17 +92,10 @@ impl VoteParams {
                 format!("must be finite and >= 0, got {}", self.nms_radius),
             );
         }
-        at_least_one(&[
-            ("max_hypotheses", self.max_hypotheses),
-            ("max_seeds", self.max_seeds),
-            ("max_iterations", self.max_iterations),
-            ("rotations_per_position", self.rotations_per_position),
-            ("rotation_candidates", self.rotation_candidates),
-            ("rotation_eval_votes", self.rotation_eval_votes),
-            ("coarse_votes", self.coarse_votes),
-            ("refine_modes", self.refine_modes),
-            ("refine_votes", self.refine_votes),
-        ])
+        at_least_one(&named!(self, "";
+            max_hypotheses, max_seeds, max_iterations,
+            rotations_per_position, rotation_candidates, rotation_eval_votes,
+            coarse_votes, refine_modes, refine_votes))
     }
 }
 
@@ -296,6 +289,7 @@ fn nest(json: &Value, source: &str, skip_unknown: bool) -> Result<(Value, Vec<St
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::expect_err;
     use serde_json::json;
 
     #[test]
@@ -321,24 +315,19 @@ mod tests {
     #[test]
     fn unknown_keys_are_named_or_skipped() {
         let mut p = PredictParams::default();
-        let e = p
-            .overlay(&json!({"strid": 2}), "flags")
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("flags") && e.contains("\"strid\"") && e.contains("\"stride\""),
-            "{e}"
+        expect_err(
+            p.overlay(&json!({"strid": 2}), "flags"),
+            &["flags", "\"strid\"", "\"stride\""],
         );
         let skipped = p
             .overlay_known(&json!({"stride": 3, "from_the_future": 1}), "model")
             .unwrap();
         assert_eq!(skipped, vec!["from_the_future".to_string()]);
         assert_eq!(p.stride, 3);
-        let e = p
-            .overlay(&json!({"max_hypotheses": 1.5}), "kw")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("kw: vote.max_hypotheses:"), "{e}");
+        expect_err(
+            p.overlay(&json!({"max_hypotheses": 1.5}), "kw"),
+            &["kw: vote.max_hypotheses:"],
+        );
     }
 
     #[test]
@@ -347,15 +336,11 @@ mod tests {
             stride: 0,
             ..Default::default()
         };
-        assert!(p.check().unwrap_err().to_string().contains("stride"));
+        expect_err(p.check(), &["stride"]);
         let v = VoteParams {
             rotation_bandwidth: 4.0,
             ..Default::default()
         };
-        assert!(v
-            .check()
-            .unwrap_err()
-            .to_string()
-            .contains("rotation_bandwidth"));
+        expect_err(v.check(), &["rotation_bandwidth"]);
     }
 }

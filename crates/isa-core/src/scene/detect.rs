@@ -71,6 +71,8 @@ impl<'a> SceneModel<'a> {
 /// One detected object: pose `(r, t)` (object to camera, `t` the category's origin), `size`
 /// along its own axes, `box_centre` (object frame), `score` (verified, or the forest's without
 /// shapes), `support` (votes), and where it came from.
+// Plain fields, some like a vote `Hypothesis`'s (pose, score, support); `duplicates` pairs the
+// two by shape, and each holds what its own stage gives.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Detection {
     pub category: String,

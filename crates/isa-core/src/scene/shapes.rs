@@ -285,6 +285,7 @@ impl ShapeLibrary {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::error::expect_err;
 
     /// The surface of an axis-aligned box `size` standing on z = 0 (centre over the origin),
     /// `n` samples per face side.
@@ -339,16 +340,10 @@ pub(crate) mod tests {
         }
         let mut bad = bytes.clone();
         bad[HEADER + 40] ^= 1;
-        assert!(ShapeLibrary::decode(&bad, "t")
-            .unwrap_err()
-            .to_string()
-            .contains("checksum"));
+        expect_err(ShapeLibrary::decode(&bad, "t"), &["checksum"]);
         let mut newer = bytes.clone();
         newer[8] = 9;
-        assert!(ShapeLibrary::decode(&newer, "t")
-            .unwrap_err()
-            .to_string()
-            .contains("version 9"));
+        expect_err(ShapeLibrary::decode(&newer, "t"), &["version 9"]);
         let dir = std::env::temp_dir().join(format!("isa-shapes-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("box.shapes.isl");

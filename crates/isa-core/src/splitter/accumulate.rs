@@ -189,6 +189,8 @@ fn add_block_lanes<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
 }
 
 /// AVX2 form of [`add_block_lanes`] (same additions in the same order: bit-identical).
+/// Its destructuring of the block repeats the portable twin's on purpose (`duplicates` lists
+/// the pair): the bodies differ, and `accumulation_paths_agree` compares the two paths.
 ///
 /// # Safety
 /// AVX2 must be available; `z` holds `j1 * mp` values, `bins` covers parts `..j1` and

@@ -46,7 +46,8 @@ pub(super) fn gather_chunk(
 }
 
 /// [`gather_chunk`] with AVX2 (the 8 lanes of a block in one register; the same IEEE
-/// operations in the same order, so the same answer).
+/// operations in the same order, so the same answer). Its argument list is the portable twin's
+/// on purpose (`duplicates` lists the pair): `gather_paths_agree` compares the two.
 ///
 /// # Safety
 /// AVX2 must be available.

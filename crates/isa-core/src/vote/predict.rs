@@ -426,6 +426,7 @@ mod tests {
     use super::super::{quat_angle, synth};
     use super::*;
     use crate::criterion::RawTargets;
+    use crate::error::expect_err;
     use crate::forest::TrainingSet;
     use crate::params::{ForestParams, Quality};
     use crate::tree::{Node, Tree, Vote};
@@ -622,18 +623,14 @@ mod tests {
             "the weights must keep some votes and drop others"
         );
         // Bad weights are refused by name.
-        let e = plain
-            .clone()
-            .with_leaf_weights(Some(per_tree(&|_, _| 1.5)))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("tree 0 leaf 0") && e.contains("1.5"), "{e}");
-        let e = plain
-            .clone()
-            .with_leaf_weights(Some(vec![vec![1.0]]))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("trees of weights"), "{e}");
+        expect_err(
+            plain.clone().with_leaf_weights(Some(per_tree(&|_, _| 1.5))),
+            &["tree 0 leaf 0", "1.5"],
+        );
+        expect_err(
+            plain.clone().with_leaf_weights(Some(vec![vec![1.0]])),
+            &["trees of weights"],
+        );
     }
 
     #[test]
@@ -712,29 +709,28 @@ mod tests {
     fn bad_inputs_are_named() {
         let forest = constant_forest(1, &[]);
         let depth = vec![1000u16; 20];
-        let e = DepthImage::new(&depth, 5, 5).unwrap_err().to_string();
-        assert!(e.contains("depth") && e.contains("5x5"), "{e}");
+        expect_err(DepthImage::new(&depth, 5, 5), &["depth", "5x5"]);
         let img = DepthImage::new(&depth, 5, 4).unwrap();
         let bad_k = Intrinsics { fx: 0.0, ..K };
-        assert!(predict(&forest, &img, &bad_k, &Valid::default())
-            .unwrap_err()
-            .to_string()
-            .contains("focal"));
+        expect_err(
+            predict(&forest, &img, &bad_k, &Valid::default()),
+            &["focal"],
+        );
         let p = PredictParams {
             stride: 0,
             ..Default::default()
         };
-        assert!(p.check().unwrap_err().to_string().contains("stride"));
+        expect_err(p.check(), &["stride"]);
         let p = PredictParams {
             max_depth: Some(0.0),
             ..Default::default()
         };
-        assert!(p.check().unwrap_err().to_string().contains("max_depth"));
+        expect_err(p.check(), &["max_depth"]);
         // A principal point outside the image: the intrinsics are not this image's.
-        assert!(predict(&forest, &img, &K, &Valid::default())
-            .unwrap_err()
-            .to_string()
-            .contains("principal point"));
+        expect_err(
+            predict(&forest, &img, &K, &Valid::default()),
+            &["principal point"],
+        );
         // No trees, or no valid pixels: no hypotheses.
         let k = Intrinsics {
             cx: 2.0,

@@ -4,6 +4,7 @@
 use super::gather::gather_chunk_avx2;
 use super::gather::{gather, gather_chunk, GATHER_LANES};
 use super::*;
+use crate::error::expect_err;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -424,10 +425,10 @@ fn errors_name_the_vote_or_parameter() {
     };
     let mut votes = vec![good; 5];
     votes[3].position[1] = f32::NAN;
-    let e = find_modes(&votes, &VoteParams::default())
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("votes[3]") && e.contains("position"), "{e}");
+    expect_err(
+        find_modes(&votes, &VoteParams::default()),
+        &["votes[3]", "position"],
+    );
     votes[3] = PoseVote {
         weight: -1.0,
         ..good
@@ -436,10 +437,10 @@ fn errors_name_the_vote_or_parameter() {
         rotation: [0.0; 4],
         ..good
     };
-    let e = find_modes(&votes, &VoteParams::default())
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("votes[3]") && e.contains("weight"), "{e}");
+    expect_err(
+        find_modes(&votes, &VoteParams::default()),
+        &["votes[3]", "weight"],
+    );
     // Each parameter set out of range in turn.
     type Setter = fn(&mut VoteParams);
     let spoil: [(&str, Setter); 5] = [
