@@ -173,7 +173,10 @@ def test_predict_takes_any_array_or_names_it(fitted, mm, dtype, transpose):
     if transpose and depth.ndim == 2:
         depth = depth.T  # not C-contiguous
     ok_dtype = depth.dtype in (np.uint16, np.float32, np.float64)
-    ok = ok_dtype and depth.ndim == 2 and depth.flags.c_contiguous and depth.shape[0] >= 12 and depth.shape[1] >= 12
+    big = depth.ndim >= 2 and depth.shape[0] >= 12 and depth.shape[1] >= 12
+    # An (H, W, 3) array is an organised point cloud, read as float whatever its dtype.
+    cloud = depth.ndim == 3 and depth.shape[2] == 3
+    ok = big and ((ok_dtype and depth.ndim == 2 and depth.flags.c_contiguous) or cloud)
     try:
         hyps = f.predict(depth, K)
     except IsaError as e:
