@@ -1,5 +1,6 @@
-"""Depth renderer against analytic truths (planes, a box), back-projection onto the mesh surface,
-and the optional Kinect noise model."""
+"""Depth renderer (both backends) against analytic truths (planes, a box), back-projection onto the
+mesh surface, and the optional Kinect noise model. tests/test_render_core.py compares the backends
+with each other and with ray casting."""
 
 from __future__ import annotations
 
@@ -13,23 +14,32 @@ from scipy.spatial.transform import Rotation
 
 from isa.camera import KINECT_V1, Intrinsics
 from isa.data.procedural import generate
+from isa.exceptions import MissingDependencyError
 from isa.render.noise import KinectNoise, apply_kinect_noise
-from isa.render.renderer import DepthRenderer
+from isa.render.renderer import BACKENDS, DepthRenderer
 from isa.render.views import training_views
 
 ODD = Intrinsics(fx=301.7, fy=298.2, cx=171.3, cy=112.8, width=333, height=241)  # not Kinect, odd size
 
 
-@pytest.fixture(scope="module")
-def kinect():
-    r = DepthRenderer(KINECT_V1)
+def _renderer(K: Intrinsics, backend: str) -> DepthRenderer:
+    try:
+        return DepthRenderer(K, backend=backend)
+    except MissingDependencyError as e:  # the pyrender backend without pyrender or GL
+        pytest.skip(str(e))
+
+
+# Every analytic test runs on both backends (the pyrender one skips without pyrender or GL).
+@pytest.fixture(scope="module", params=BACKENDS)
+def kinect(request):
+    r = _renderer(KINECT_V1, request.param)
     yield r
     r.close()
 
 
-@pytest.fixture(scope="module")
-def odd():
-    r = DepthRenderer(ODD)
+@pytest.fixture(scope="module", params=BACKENDS)
+def odd(request):
+    r = _renderer(ODD, request.param)
     yield r
     r.close()
 
