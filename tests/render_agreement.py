@@ -33,6 +33,12 @@ def depth_edges(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return mask & (hi - lo > DEPTH_EDGE)
 
 
+def smooth_pixels(da: np.ndarray, ma: np.ndarray, db: np.ndarray, mb: np.ndarray) -> np.ndarray:
+    """Pixels both renders cover, on no silhouette edge and no depth edge of either."""
+    edges = mask_edges(ma) | mask_edges(mb) | depth_edges(da, ma) | depth_edges(db, mb)
+    return ma & mb & ~edges
+
+
 @dataclass
 class Agreement:
     """Pixels compared over one or more frames, and how they differ."""
@@ -56,7 +62,7 @@ class Agreement:
         self.mask_differ_off_edge += int((differ & ~edges).sum())
         both = ma & mb
         diff = np.abs(da.astype(np.float64) - db.astype(np.float64))
-        smooth = both & ~edges & ~depth_edges(da, ma) & ~depth_edges(db, mb)
+        smooth = smooth_pixels(da, ma, db, mb)
         self.both += int(both.sum())
         self.smooth += int(smooth.sum())
         self.diffs_smooth.append(diff[smooth])
