@@ -29,19 +29,18 @@ def _renderer(K: Intrinsics, backend: str) -> DepthRenderer:
         pytest.skip(str(e))
 
 
-# Every analytic test runs on both backends (the pyrender one skips without pyrender or GL).
+# Every test runs on both backends (the pyrender one skips without pyrender or GL).
 @pytest.fixture(scope="module", params=BACKENDS)
-def kinect(request):
-    r = _renderer(KINECT_V1, request.param)
-    yield r
-    r.close()
+def renderers(request):
+    rs = {"kinect": _renderer(KINECT_V1, request.param), "odd": _renderer(ODD, request.param)}
+    yield rs
+    for r in rs.values():
+        r.close()
 
 
-@pytest.fixture(scope="module", params=BACKENDS)
-def odd(request):
-    r = _renderer(ODD, request.param)
-    yield r
-    r.close()
+@pytest.fixture
+def kinect(renderers):
+    return renderers["kinect"]
 
 
 def _rays(K: Intrinsics) -> np.ndarray:
@@ -57,8 +56,8 @@ def _plane(sx: float, sy: float) -> trimesh.Trimesh:
 
 
 @pytest.mark.parametrize("which", ["kinect", "odd"])
-def test_fronto_parallel_plane_depth_and_mask(request, which):
-    r = request.getfixturevalue(which)
+def test_fronto_parallel_plane_depth_and_mask(renderers, which):
+    r = renderers[which]
     K = r.intrinsics
     sx, sy, t = 0.9, 0.6, np.array([0.07, -0.04, 2.0])
     depth, mask = r.render(_plane(sx, sy), np.eye(3), t)
@@ -74,8 +73,8 @@ def test_fronto_parallel_plane_depth_and_mask(request, which):
 
 
 @pytest.mark.parametrize("which", ["kinect", "odd"])
-def test_tilted_plane_analytic_depth(request, which):
-    r = request.getfixturevalue(which)
+def test_tilted_plane_analytic_depth(renderers, which):
+    r = renderers[which]
     K = r.intrinsics
     R = Rotation.from_euler("xy", [40, 25], degrees=True).as_matrix()
     t = np.array([0.1, -0.05, 2.5])
