@@ -180,11 +180,7 @@ fn face_triangles(p: [[f64; 3]; 3], camera: &RenderCamera) -> impl Iterator<Item
             // edge compute the same point.
             let (i_, o_) = if inside(&a) { (a, b) } else { (b, a) };
             let s = (zn - i_[2]) / (o_[2] - i_[2]);
-            let q = [
-                i_[0] + s * (o_[0] - i_[0]),
-                i_[1] + s * (o_[1] - i_[1]),
-                zn,
-            ];
+            let q = [i_[0] + s * (o_[0] - i_[0]), i_[1] + s * (o_[1] - i_[1]), zn];
             poly[n] = project(q, k);
             n += 1;
         }

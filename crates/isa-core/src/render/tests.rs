@@ -28,7 +28,13 @@ fn camera(k: Intrinsics) -> RenderCamera {
     }
 }
 
-fn render(v: &[[f32; 3]], f: &[[u32; 3]], r: &[[f64; 3]; 3], t: [f64; 3], c: &RenderCamera) -> DepthFrame {
+fn render(
+    v: &[[f32; 3]],
+    f: &[[u32; 3]],
+    r: &[[f64; 3]; 3],
+    t: [f64; 3],
+    c: &RenderCamera,
+) -> DepthFrame {
     let out = render_depth(v, f, r, &t, c).unwrap();
     assert_eq!(out.depth.len(), c.width * c.height);
     for (d, m) in out.depth.iter().zip(&out.mask) {
@@ -65,7 +71,11 @@ fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 /// Where the ray `s d` (s > 0) meets the plane of triangle `p`: `(z, smallest barycentric
@@ -107,15 +117,25 @@ fn fronto_parallel_square_has_exact_depth_and_pixel_set() {
     let out = render(&v, &f, &I3, [0.013, -0.021, 3.7], &c);
     let k = &EXACT;
     let span = |a: f32, b: f32, off: f64, f: f64, cc: f64| {
-        let (lo, hi) = (f * (a as f64 + off) / 3.7 + cc, f * (b as f64 + off) / 3.7 + cc);
+        let (lo, hi) = (
+            f * (a as f64 + off) / 3.7 + cc,
+            f * (b as f64 + off) / 3.7 + cc,
+        );
         lo.ceil() as usize..=hi.floor() as usize
     };
-    let (us, vs) = (span(-0.61, 0.37, 0.013, k.fx, k.cx), span(-0.29, 0.43, -0.021, k.fy, k.cy));
+    let (us, vs) = (
+        span(-0.61, 0.37, 0.013, k.fx, k.cx),
+        span(-0.29, 0.43, -0.021, k.fy, k.cy),
+    );
     let mut n = 0;
     for y in 0..480 {
         for x in 0..640 {
             let i = y * 640 + x;
-            assert_eq!(out.mask[i], us.contains(&x) && vs.contains(&y), "pixel ({x}, {y})");
+            assert_eq!(
+                out.mask[i],
+                us.contains(&x) && vs.contains(&y),
+                "pixel ({x}, {y})"
+            );
             if out.mask[i] {
                 assert!((out.depth[i] as f64 - 3.7).abs() < 3e-7);
                 n += 1;
@@ -149,7 +169,11 @@ fn tilted_plane_depth_is_the_ray_plane_intersection() {
                 let margin = (hx as f64 - q[0].abs()).min(hy as f64 - q[1].abs());
                 let i = y * 640 + x;
                 if margin.abs() > 1e-6 {
-                    assert_eq!(out.mask[i], margin > 0.0, "pixel ({x}, {y}) margin {margin}");
+                    assert_eq!(
+                        out.mask[i],
+                        margin > 0.0,
+                        "pixel ({x}, {y}) margin {margin}"
+                    );
                 }
                 if out.mask[i] {
                     max_err = max_err.max((out.depth[i] as f64 - z).abs());
@@ -177,7 +201,13 @@ fn coverage_counts(v: &[[f32; 3]], f: &[[u32; 3]], c: &RenderCamera) -> Vec<u8> 
 /// A fan around `centre` through `rim` (pixel coordinates, convex, in angular order), as
 /// object points at z = 0 seen at 2 m through [`EXACT`].
 fn fan(centre: [f64; 2], rim: &[[f64; 2]]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
-    let obj = |p: [f64; 2]| [((p[0] - 320.0) / 256.0) as f32, ((p[1] - 240.0) / 256.0) as f32, 0.0];
+    let obj = |p: [f64; 2]| {
+        [
+            ((p[0] - 320.0) / 256.0) as f32,
+            ((p[1] - 240.0) / 256.0) as f32,
+            0.0,
+        ]
+    };
     let mut v = vec![obj(centre)];
     v.extend(rim.iter().map(|&p| obj(p)));
     let n = rim.len() as u32;
@@ -211,7 +241,10 @@ fn assert_covered_once(centre: [f64; 2], rim: &[[f64; 2]]) {
                 })
                 .fold(f64::INFINITY, f64::min);
             if margin > 1e-9 {
-                assert_eq!(count[i], 1, "pixel ({x}, {y}) inside the rim is not covered");
+                assert_eq!(
+                    count[i], 1,
+                    "pixel ({x}, {y}) inside the rim is not covered"
+                );
                 inside_n += 1;
             }
         }
@@ -224,10 +257,19 @@ fn triangles_sharing_edges_cover_each_pixel_once() {
     // Spokes along rows, columns and diagonals through pixel centres, the centre on one.
     let (cu, cv) = (320.0, 240.0);
     let s = 40.0;
-    let square: Vec<[f64; 2]> = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)]
-        .iter()
-        .map(|&(a, b)| [cu + s * a as f64, cv + s * b as f64])
-        .collect();
+    let square: Vec<[f64; 2]> = [
+        (1, 0),
+        (1, 1),
+        (0, 1),
+        (-1, 1),
+        (-1, 0),
+        (-1, -1),
+        (0, -1),
+        (1, -1),
+    ]
+    .iter()
+    .map(|&(a, b)| [cu + s * a as f64, cv + s * b as f64])
+    .collect();
     assert_covered_once([cu, cv], &square);
     // Irregular convex fans, vertices on integer pixels (many ties) and anywhere.
     let mut rng = ChaCha8Rng::seed_from_u64(7);
@@ -247,7 +289,9 @@ fn triangles_sharing_edges_cover_each_pixel_once() {
             .map(|t| [snap(cu + a * t.cos()), snap(cv + b * t.sin())])
             .collect();
         // A centre inside the rim (the mean of its vertices), snapped too.
-        let m = rim.iter().fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
+        let m = rim
+            .iter()
+            .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
         let centre = [snap(m[0] / n as f64), snap(m[1] / n as f64)];
         let inside = (0..rim.len()).all(|j| {
             let (p, q) = (rim[j], rim[(j + 1) % rim.len()]);
@@ -275,7 +319,10 @@ fn assert_matches_ray_casting(tri: [[f64; 3]; 3], c: &RenderCamera, min_clipped:
         for x in 0..c.width {
             let i = y * c.width + x;
             let Some((z, bary)) = ray_triangle(ray(&c.k, x, y), p) else {
-                assert!(!out.mask[i], "pixel ({x}, {y}) drawn, its ray misses the plane");
+                assert!(
+                    !out.mask[i],
+                    "pixel ({x}, {y}) drawn, its ray misses the plane"
+                );
                 continue;
             };
             if bary > eps {
@@ -290,14 +337,20 @@ fn assert_matches_ray_casting(tri: [[f64; 3]; 3], c: &RenderCamera, min_clipped:
                 assert!(!out.mask[i], "pixel ({x}, {y}) outside the face is drawn");
             }
             if out.mask[i] {
-                assert!(z >= c.znear * (1.0 - 1e-9) && z <= c.zfar * (1.0 + 1e-9), "pixel ({x}, {y}) at z {z}");
+                assert!(
+                    z >= c.znear * (1.0 - 1e-9) && z <= c.zfar * (1.0 + 1e-9),
+                    "pixel ({x}, {y}) at z {z}"
+                );
                 max_err = max_err.max((out.depth[i] as f64 - z).abs() / z);
                 drawn += 1;
             }
         }
     }
     assert!(drawn > 1000, "{drawn}");
-    assert!(clipped >= min_clipped, "{clipped} pixels see the face nearer than znear");
+    assert!(
+        clipped >= min_clipped,
+        "{clipped} pixels see the face nearer than znear"
+    );
     assert!(max_err < 3e-7, "relative depth error {max_err}");
 }
 
@@ -306,20 +359,51 @@ fn faces_crossing_the_near_plane_are_clipped() {
     let mut c = camera(Intrinsics::KINECT_V1);
     c.znear = 0.5;
     // One vertex nearer than znear, in front of the camera.
-    assert_matches_ray_casting([[-1.0, -0.5, 3.0], [1.0, -0.5, 3.0], [0.0, 0.3, 0.1]], &c, 1000);
+    assert_matches_ray_casting(
+        [[-1.0, -0.5, 3.0], [1.0, -0.5, 3.0], [0.0, 0.3, 0.1]],
+        &c,
+        1000,
+    );
     // Two vertices nearer than znear (a triangle is left, not a quadrilateral).
-    assert_matches_ray_casting([[-0.3, 0.2, 0.2], [0.3, 0.2, 0.2], [0.0, -0.6, 2.5]], &c, 1000);
+    assert_matches_ray_casting(
+        [[-0.3, 0.2, 0.2], [0.3, 0.2, 0.2], [0.0, -0.6, 2.5]],
+        &c,
+        1000,
+    );
     // A vertex behind the camera.
-    assert_matches_ray_casting([[-1.0, -0.4, 2.0], [1.2, -0.3, 2.2], [0.1, 0.5, -1.0]], &c, 0);
+    assert_matches_ray_casting(
+        [[-1.0, -0.4, 2.0], [1.2, -0.3, 2.2], [0.1, 0.5, -1.0]],
+        &c,
+        0,
+    );
     // Straddling the far plane.
     c.zfar = 2.5;
-    assert_matches_ray_casting([[-1.0, -0.5, 1.5], [1.0, -0.5, 1.5], [0.0, 0.8, 4.0]], &c, 0);
-    let out = render(&[[-1.0, -1.0, 3.0], [1.0, -1.0, 3.0], [0.0, 1.0, 3.0]], &[[0, 1, 2]], &I3, [0.0; 3], &c);
+    assert_matches_ray_casting(
+        [[-1.0, -0.5, 1.5], [1.0, -0.5, 1.5], [0.0, 0.8, 4.0]],
+        &c,
+        0,
+    );
+    let out = render(
+        &[[-1.0, -1.0, 3.0], [1.0, -1.0, 3.0], [0.0, 1.0, 3.0]],
+        &[[0, 1, 2]],
+        &I3,
+        [0.0; 3],
+        &c,
+    );
     assert!(out.mask.iter().all(|m| !m), "a face beyond zfar is drawn");
     // Wholly behind the near plane.
     c.zfar = 20.0;
-    let out = render(&[[-1.0, -1.0, 0.3], [1.0, -1.0, 0.3], [0.0, 1.0, 0.2]], &[[0, 1, 2]], &I3, [0.0; 3], &c);
-    assert!(out.mask.iter().all(|m| !m), "a face nearer than znear is drawn");
+    let out = render(
+        &[[-1.0, -1.0, 0.3], [1.0, -1.0, 0.3], [0.0, 1.0, 0.2]],
+        &[[0, 1, 2]],
+        &I3,
+        [0.0; 3],
+        &c,
+    );
+    assert!(
+        out.mask.iter().all(|m| !m),
+        "a face nearer than znear is drawn"
+    );
 }
 
 #[test]
@@ -327,7 +411,12 @@ fn the_nearer_face_wins_in_either_order() {
     let c = camera(EXACT);
     // Two squares overlapping around the optical axis, at camera z 3 and 4 (object z 0 and 1).
     let (mut v, _) = rect(-0.5, 0.25, -0.5, 0.25);
-    v.extend(rect(-0.25, 0.5, -0.25, 0.5).0.iter().map(|p| [p[0], p[1], 1.0]));
+    v.extend(
+        rect(-0.25, 0.5, -0.25, 0.5)
+            .0
+            .iter()
+            .map(|p| [p[0], p[1], 1.0]),
+    );
     let near_first = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]];
     let far_first = [[4, 5, 6], [4, 6, 7], [0, 1, 2], [0, 2, 3]];
     let t = [0.0, 0.0, 3.0];
@@ -345,7 +434,13 @@ fn both_windings_and_any_thread_count_give_the_same_frame() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     // A random soup of small triangles around a point 2.5 m away.
     let v: Vec<[f32; 3]> = (0..600)
-        .map(|_| [rng.random_range(-0.5..0.5), rng.random_range(-0.4..0.4), rng.random_range(-0.3..0.3)])
+        .map(|_| {
+            [
+                rng.random_range(-0.5..0.5),
+                rng.random_range(-0.4..0.4),
+                rng.random_range(-0.3..0.3),
+            ]
+        })
         .collect();
     let f: Vec<[u32; 3]> = (0..200).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
     let flipped: Vec<[u32; 3]> = f.iter().map(|t| [t[0], t[2], t[1]]).collect();
@@ -354,7 +449,10 @@ fn both_windings_and_any_thread_count_give_the_same_frame() {
     assert!(a.mask.iter().filter(|m| **m).count() > 10_000);
     assert_eq!(a, render(&v, &flipped, &r, t, &c));
     for n in [1, 3] {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap();
         assert_eq!(a, pool.install(|| render(&v, &f, &r, t, &c)), "{n} threads");
     }
 }
@@ -381,14 +479,25 @@ fn errors_name_the_argument() {
     let big = [[1e300, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     assert!(msg(&[[1e30, 0.0, 0.0]], &[], &big, t, &c).contains("vertices[0]"));
     for (w, h) in [(0, 480), (640, 0), (1 << 15, 1 << 14)] {
-        let cc = RenderCamera { width: w, height: h, ..c };
+        let cc = RenderCamera {
+            width: w,
+            height: h,
+            ..c
+        };
         assert!(msg(&v, &f, &I3, t, &cc).contains("width, height"));
     }
     for (n, fz) in [(0.0, 10.0), (2.0, 1.0), (0.1, f64::INFINITY), (-1.0, 5.0)] {
-        let cc = RenderCamera { znear: n, zfar: fz, ..c };
+        let cc = RenderCamera {
+            znear: n,
+            zfar: fz,
+            ..c
+        };
         assert!(msg(&v, &f, &I3, t, &cc).contains("znear, zfar"));
     }
-    let cc = RenderCamera { k: Intrinsics { fx: 0.0, ..c.k }, ..c };
+    let cc = RenderCamera {
+        k: Intrinsics { fx: 0.0, ..c.k },
+        ..c
+    };
     assert!(msg(&v, &f, &I3, t, &cc).contains("focal"));
     // No faces, or no vertices and no faces: an empty frame, not an error.
     assert!(render(&[], &[], &I3, t, &c).mask.iter().all(|m| !m));
