@@ -4,7 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# Headless rendering: pyrender over EGL (Mesa llvmpipe); importing pyrender loads pyglet,
+# Rendering needs none of this (the Rust core rasterises); the optional pyrender backend, which
+# the tests compare the core with, runs over EGL (Mesa llvmpipe); importing pyrender loads pyglet,
 # which needs libGL and libXrender even off-screen. OSMesa as a fallback.
 # The package list is isa.render.renderer.HEADLESS_GL_APT (read from the source: nothing is
 # installed yet).
@@ -25,8 +26,8 @@ if [ ${#need_apt[@]} -gt 0 ]; then
 fi
 
 PY=${PYTHON:-python3}
-# pyrender pins PyOpenGL==3.1.0, which breaks OSMesa/EGL on current Mesa: install it without
-# its dependencies and list them here explicitly (see requirements/runtime.txt).
+# pyrender pins PyOpenGL==3.1.0, which lacks the OSMesa fallback: install it without its
+# dependencies and list them here explicitly (see requirements/runtime.txt).
 $PY -m pip install -q --disable-pip-version-check -r requirements/runtime.txt
 $PY -m pip install -q --disable-pip-version-check --no-deps "pyrender==0.1.45"
 if [ "${ISA_SETUP_DEV:-1}" = 1 ]; then

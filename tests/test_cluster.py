@@ -167,7 +167,6 @@ def test_a_task_failing_on_bad_input_fails_the_job_naming_it(shards, client):
 
 
 def test_cluster_rendering_writes_the_serial_renderers_frames(tmp_path, client):
-    pytest.importorskip("pyrender")
     from isa.data import bop
     from isa.render.dataset import procedural_objects, render_dataset
 
@@ -185,7 +184,6 @@ def test_cluster_rendering_writes_the_serial_renderers_frames(tmp_path, client):
 
 
 def test_train_command_with_shards_writes_the_in_memory_model(tmp_path):
-    pytest.importorskip("pyrender")
     from isa.forest import build
 
     kw = dict(procedural=2, views=2, stride=8, trees=2, depth=6, progress=False)

@@ -199,7 +199,9 @@ def test_detect_finds_the_chair_once_with_two_category_models_firing(tmp_path):
     res = detect(depth, KINECT_V1, models, gravity=Rg)
     assert res.gravity.source == "given" and res.floor_height == pytest.approx(-EYE[2], abs=0.02)
     truth = Box3D("chair", Rg @ (R @ test.bounds.mean(0) + t), test.extents, 0.6)
-    on_chair = [d for d in res.detections if iou_3d(d.box(Rg), truth) > 0.1]
+    # On the chair: the benchmark's match threshold, IoU 0.25 (at 0.1, a stray negative-score
+    # detection 35 cm off, at IoU 0.108, counted when the frames came from the core rasteriser).
+    on_chair = [d for d in res.detections if iou_3d(d.box(Rg), truth) > 0.25]
     assert len(on_chair) == 1, [(d.category, d.score) for d in res.detections]
     best = res.detections[0]
     assert best is on_chair[0] and iou_3d(best.box(Rg), truth) > 0.5

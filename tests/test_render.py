@@ -1,5 +1,6 @@
-"""Depth renderer against analytic truths (planes, a box), back-projection onto the mesh surface,
-and the optional Kinect noise model."""
+"""Depth renderer (both backends) against analytic truths (planes, a box), back-projection onto the
+mesh surface, and the optional Kinect noise model. tests/test_render_core.py compares the backends
+with each other and with ray casting."""
 
 from __future__ import annotations
 
@@ -13,25 +14,33 @@ from scipy.spatial.transform import Rotation
 
 from isa.camera import KINECT_V1, Intrinsics
 from isa.data.procedural import generate
+from isa.exceptions import MissingDependencyError
 from isa.render.noise import KinectNoise, apply_kinect_noise
-from isa.render.renderer import DepthRenderer
+from isa.render.renderer import BACKENDS, DepthRenderer
 from isa.render.views import training_views
 
 ODD = Intrinsics(fx=301.7, fy=298.2, cx=171.3, cy=112.8, width=333, height=241)  # not Kinect, odd size
 
 
-@pytest.fixture(scope="module")
-def kinect():
-    r = DepthRenderer(KINECT_V1)
-    yield r
-    r.close()
+def _renderer(K: Intrinsics, backend: str) -> DepthRenderer:
+    try:
+        return DepthRenderer(K, backend=backend)
+    except MissingDependencyError as e:  # the pyrender backend without pyrender or GL
+        pytest.skip(str(e))
 
 
-@pytest.fixture(scope="module")
-def odd():
-    r = DepthRenderer(ODD)
-    yield r
-    r.close()
+# Every test runs on both backends (the pyrender one skips without pyrender or GL).
+@pytest.fixture(scope="module", params=BACKENDS)
+def renderers(request):
+    rs = {"kinect": _renderer(KINECT_V1, request.param), "odd": _renderer(ODD, request.param)}
+    yield rs
+    for r in rs.values():
+        r.close()
+
+
+@pytest.fixture
+def kinect(renderers):
+    return renderers["kinect"]
 
 
 def _rays(K: Intrinsics) -> np.ndarray:
@@ -47,8 +56,8 @@ def _plane(sx: float, sy: float) -> trimesh.Trimesh:
 
 
 @pytest.mark.parametrize("which", ["kinect", "odd"])
-def test_fronto_parallel_plane_depth_and_mask(request, which):
-    r = request.getfixturevalue(which)
+def test_fronto_parallel_plane_depth_and_mask(renderers, which):
+    r = renderers[which]
     K = r.intrinsics
     sx, sy, t = 0.9, 0.6, np.array([0.07, -0.04, 2.0])
     depth, mask = r.render(_plane(sx, sy), np.eye(3), t)
@@ -64,8 +73,8 @@ def test_fronto_parallel_plane_depth_and_mask(request, which):
 
 
 @pytest.mark.parametrize("which", ["kinect", "odd"])
-def test_tilted_plane_analytic_depth(request, which):
-    r = request.getfixturevalue(which)
+def test_tilted_plane_analytic_depth(renderers, which):
+    r = renderers[which]
     K = r.intrinsics
     R = Rotation.from_euler("xy", [40, 25], degrees=True).as_matrix()
     t = np.array([0.1, -0.05, 2.5])

@@ -49,6 +49,7 @@ __all__ = [
     "nms_across",
     "read_trainset",
     "refine_pose",
+    "render_depth",
     "sample_parts",
     "verify_pose",
     "write_shard_manifest",
@@ -109,6 +110,23 @@ def depth_to_metres(depth: npt.ArrayLike, K: Any, depth_scale: float | None = No
 def depth_from_points(points: npt.ArrayLike, K: Any, width: int, height: int) -> npt.NDArray[np.float32]:
     """Camera-frame points (N, 3) float64 projected to a (height, width) float32 depth image in
     the points' unit (nearest point per pixel, 0 = missing)."""
+
+def render_depth(
+    vertices: npt.NDArray[np.float32],
+    faces: npt.NDArray[np.integer[Any]],
+    R: npt.ArrayLike,
+    t: npt.ArrayLike,
+    K: Any,
+    width: int,
+    height: int,
+    znear: float,
+    zfar: float,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
+    """Depth (H, W) float32 metres (0 = background) and mask (H, W) bool of the mesh
+    (``vertices`` (N, 3) float32 in the object frame, ``faces`` (M, 3) integer) at pose
+    ``X_cam = R @ X_obj + t``, through ``K`` (OpenCV, pixel centres at integers) in a
+    ``width`` x ``height`` image between ``znear`` and ``zfar`` metres. Both windings of every
+    face are drawn; the nearest face wins."""
 
 @final
 class Hypothesis:

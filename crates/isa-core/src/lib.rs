@@ -14,6 +14,8 @@
 //!   checks of scale and image size, point clouds to depth images);
 //! * inference: [`vote`] (whole-image voting in `vote::predict`, then mode finding: grid,
 //!   gather, position modes, NMS, rotation modes);
+//! * rendering: [`render`] (depth frames of triangle meshes: the z-buffer rasteriser that
+//!   renders training and test views without OpenGL);
 //! * scenes: [`scene`] (every category model over one room frame: gravity, planes, votes,
 //!   verification against shape libraries, size, ICP refinement, NMS across categories);
 //! * shared: [`rotation`] (quaternions and matrices on nalgebra), [`rng`] (seeding),
@@ -33,6 +35,7 @@ pub mod metadata;
 pub mod model_io;
 pub mod params;
 pub(crate) mod probe;
+pub mod render;
 pub mod rng;
 pub mod rotation;
 pub mod scene;

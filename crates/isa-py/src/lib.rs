@@ -3,7 +3,7 @@
 //! core errors to their Python exception classes (`errors`), scalar arguments checked into
 //! `isa` errors (`scalars`). One file per domain: the forest
 //! (`forest`, with `predict` / `image_votes` methods), inference (`predict`, `hypothesis`),
-//! depth input (`depth_input`: `depth_scale`, size checks, warnings, point clouds), features (`features`), scene detection (`scene`), training-set files (`trainset`), the `isa` command line (`cli`, for the console script), and test hooks in the private
+//! depth input (`depth_input`: `depth_scale`, size checks, warnings, point clouds), depth rendering (`render`), features (`features`), scene detection (`scene`), training-set files (`trainset`), the `isa` command line (`cli`, for the console script), and test hooks in the private
 //! submodule `isa._core._testing` (`testing`).
 
 use pyo3::prelude::*;
@@ -17,6 +17,7 @@ pub mod forest;
 pub mod hypothesis;
 pub mod params;
 pub mod predict;
+pub mod render;
 pub mod scalars;
 pub mod scene;
 pub mod shards;
@@ -36,6 +37,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(features::depth_features, m)?)?;
     predict::register(m)?;
     depth_input::register(m)?;
+    render::register(m)?;
     cli::register(m)?;
     scene::register(m)?;
     trainset::register(m)?;
