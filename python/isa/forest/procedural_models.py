@@ -5,8 +5,8 @@ Each model is :func:`isa.forest.build.train_category` on :data:`SETTINGS` proced
 (:mod:`isa.data.procedural`, real size, z up), written as ``<dir>/<category>.isa`` with its shape
 library ``<category>.shapes.isl`` beside it (the training meshes' surface samples, so that
 :func:`isa.detection.detect` and ``isa detect`` verify and size what they find). The settings
-and seed are fixed, so every machine builds the same bytes; docs/experiments.md measures these
-models on ModelNet10's test instances against ModelNet-trained forests of the same size.
+and seed are fixed, so every machine builds the same bytes; docs/experiments.md has the commands
+that measure them on ModelNet10's test instances against ModelNet-trained forests of the same size.
 
 The folder is ``$ISA_MODELS`` if set, else ``~/.cache/isa/models``. A model already there is kept
 (``force`` rebuilds); renders and skeletons are cached in ``<dir>/cache`` so an interrupted build
