@@ -13,7 +13,8 @@ top hypothesis of a frame (isolated object, background missing, as the experimen
   in the image;
 - ``verified``: the score of :func:`isa.detection.detect` with the category's training shapes
   (:mod:`isa.detection.verify`: the share of the shape's visible surface the depth confirms,
-  minus what it refutes, after refinement), also a fraction.
+  minus what it refutes, after refinement, plus ``DetectParams.forest_weight`` times the log of
+  the forest's score, so it can exceed 1).
 
 For each score, the threshold is the one that best separates a model's own category's frames
 from the other categories' frames (highest balanced accuracy: the mean of the acceptance rate on
