@@ -41,3 +41,14 @@ def test_summary_applies_given_thresholds_unchanged():
     assert used["chair"]["score"] == 5.2
     assert table["chair"]["score"]["accept_own"] == 50.0 and table["chair"]["score"]["reject"]["table"] == 50.0
     assert "verified" not in table["chair"]  # no shapes: no verified score
+
+
+def test_first_frames_take_every_instance_in_turn():
+    from types import SimpleNamespace
+
+    # as pipeline.load_frames lists them: scene (instance) by scene, 3 views each
+    frames = [SimpleNamespace(obj_id=o, im_id=i) for o in (1001, 1002, 1003, 1004) for i in range(3)]
+    picked = rejection.first_frames(frames, 6)
+    assert sorted((f.obj_id, f.im_id) for f in picked) == sorted(
+        [(o, 0) for o in (1001, 1002, 1003, 1004)] + [(1001, 1), (1002, 1)])
+    assert len(rejection.first_frames(frames, 100)) == 12

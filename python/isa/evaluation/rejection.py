@@ -13,7 +13,8 @@ top hypothesis of a frame (isolated object, background missing, as the experimen
   in the image;
 - ``verified``: the score of :func:`isa.detection.detect` with the category's training shapes
   (:mod:`isa.detection.verify`: the share of the shape's visible surface the depth confirms,
-  minus what it refutes, after refinement), also a fraction.
+  minus what it refutes, after refinement, plus ``DetectParams.forest_weight`` times the log of
+  the forest's score, so it can exceed 1).
 
 For each score, the threshold is the one that best separates a model's own category's frames
 from the other categories' frames (highest balanced accuracy: the mean of the acceptance rate on
@@ -38,7 +39,7 @@ import numpy as np
 from isa import atomic
 from isa.exceptions import DataError
 
-__all__ = ["SCORES", "FrameScores", "frame_scores", "cross_scores", "choose_threshold", "rates", "main"]
+__all__ = ["SCORES", "FrameScores", "frame_scores", "cross_scores", "choose_threshold", "rates", "first_frames", "main"]
 
 #: The scores compared (module docstring).
 SCORES = ("score", "vote_share", "verified")
@@ -157,6 +158,13 @@ def summarise(cross: Mapping[str, Mapping[str, FrameScores]], thresholds: Mappin
     return table, used
 
 
+def first_frames(frames: Sequence, n: int) -> list:
+    """The first ``n`` of ``frames`` in the experiment's round-robin order over instances (by
+    ``(im_id, obj_id)``, as :func:`isa.experiment._test_frames` picks its test images): every
+    instance contributes, not only the first scenes."""
+    return sorted(frames, key=lambda f: (f.im_id, f.obj_id))[:n]
+
+
 def _experiment_inputs(out: Path, quality: str):
     from isa import pipeline
     from isa.detection.shapes import bop_shape_library
@@ -178,11 +186,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("experiment", type=Path, help="an experiment's output folder (models/, data/)")
     p.add_argument("--quality", default="Q1+Q2+Q3", help="which of its models (default Q1+Q2+Q3)")
     p.add_argument("--thresholds", type=Path, help="thresholds.json chosen on validation frames (default: choose here)")
-    p.add_argument("--images", type=int, default=None, help="use only the first N test frames per category")
+    p.add_argument("--images", type=int, default=None,
+                   help="use only N test frames per category, round-robin over instances (as the experiment)")
     a = p.parse_args(argv)
     models, frames, shapes = _experiment_inputs(a.experiment, a.quality)
     if a.images:
-        frames = {c: f[: a.images] for c, f in frames.items()}
+        frames = {c: first_frames(f, a.images) for c, f in frames.items()}
     thresholds = None
     if a.thresholds is not None:
         if not a.thresholds.is_file():
