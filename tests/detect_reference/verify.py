@@ -112,7 +112,7 @@ def verify_pose(evidence: DepthEvidence, R: np.ndarray, t: np.ndarray, points: n
     missing = int(np.count_nonzero(~any_valid))
     occluded = len(zm) - agree - violate - missing
     n = agree + violate + occluded + outside
-    score = 0.0 if n - outside < params.min_cells else (agree - params.violation_weight * violate) / max(agree + violate + params.unseen_weight * (n - agree - violate), 1.0)
+    score = 0.0 if n - outside < params.min_cells else (agree - params.violation_weight * violate) / n
     return Verification(float(score), agree, violate, occluded, missing, outside)
 
 

@@ -19,11 +19,7 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
   ``--foreground DIR``); every other variant votes without them;
 - ``nogravity``: ``refine`` without the scene's gravity (floor normal, else the votes' tilt);
 - ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one
-  (``fw0``: none);
-- ``crossN``: ``refine`` with ``cross_check`` ``N`` (the best N hypotheses per category also
-  verified with the other categories' shapes, handed to one that fits better);
-- ``unseenW``: ``refine`` with ``verify.unseen_weight`` ``W`` (what a hidden or out-of-image cell
-  counts in the verified score's denominator; 1 is the default).
+  (``fw0``: none).
 
 ``--shapes DIR`` holds ``<category>.shapes.npz`` (:func:`isa.detection.shapes.bop_shape_library`
 writes them from the training renders), ``--foreground DIR`` ``<category>.foreground.npz``.
@@ -65,13 +61,7 @@ def variant_params(name: str):
         return DetectParams()
     if name.startswith("fw"):
         return DetectParams(forest_weight=float(name[2:]))
-    if name.startswith("cross"):
-        return DetectParams(cross_check=int(name[5:]))
-    if name.startswith("unseen"):
-        from isa.detection.verify import VerifyParams
-
-        return DetectParams(verify=VerifyParams(unseen_weight=float(name[6:])))
-    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, crossN, fwW, unseenW for any N, W)")
+    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, fwW for any N, W)")
 
 
 def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:

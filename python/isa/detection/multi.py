@@ -99,8 +99,6 @@ class DetectParams:
     the forest's score to a verified score; ``refine_top`` hypotheses per category are refined;
     ``turns`` > 1 also verifies each hypothesis turned by multiples of 360 / ``turns`` degrees
     about gravity (the forest's front and back are the easiest to confuse) and keeps the best;
-    the ``cross_check`` best hypotheses per category are also verified with every other
-    category's shapes at their place, and handed to a category that fits better (0: off);
     ``nms_iou`` / ``nms_overlap`` the cross-category suppression; ``max_detections`` per frame;
     ``min_score`` drops weaker ones (None: none); ``predict`` further voting keywords.
     Defaults: the core's (``isa._core.DETECT_DEFAULTS``)."""
@@ -116,7 +114,6 @@ class DetectParams:
     refine_top: int = _D["refine_top"]
     turns: int = _D["turns"]
     size_top: int = _D["size_top"]
-    cross_check: int = _D["cross_check"]
     size_shapes: int = _D["size_shapes"]
     size_steps: tuple[float, ...] = tuple(_D["size_steps"])
     quick_points: int | None = _D["quick_points"]

@@ -14,8 +14,7 @@ compared with the observed depth at its pixel, within the sensor tolerance ``max
 - **outside**: the cell falls outside the image (no evidence; the z-buffer spans the image
   and its size again around it).
 
-The score is ``(agree - violation_weight * violate) / (agree + violate + unseen_weight * (occluded + outside))``
-(``unseen_weight`` 1 by default):
+The score is ``(agree - violation_weight * violate) / (agree + violate + occluded + outside)``:
 the share of the shape's surface facing the camera that the image confirms, minus what it
 refutes; a hypothesis mostly hidden or out of view cannot score high on the little that shows. It is a fraction
 in ``[-violation_weight, 1]`` whatever the frame, the category or the object's distance, so
@@ -55,9 +54,7 @@ class VerifyParams(StageParams):
     training shapes: a leg 3 cm off is still a leg), also the reach of a free-space violation:
     only a cell whose whole ``lateral`` neighbourhood is seen through is refuted;
     ``lateral_fraction``: the detector widens ``lateral`` to this fraction of the shape's
-    diagonal (a bed's parts vary by more centimetres than a chair's); ``unseen_weight`` what an
-    occluded or out-of-image cell counts in the score's denominator against a seen one (below 1,
-    a partly hidden object is marked down less). Defaults: the core's."""
+    diagonal (a bed's parts vary by more centimetres than a chair's). Defaults: the core's."""
 
     tolerance: tuple[float, float] = tuple(_D["tolerance"])  # type: ignore[assignment]
     violation_weight: float = _D["violation_weight"]
@@ -66,7 +63,6 @@ class VerifyParams(StageParams):
     min_cells: int = _D["min_cells"]
     lateral: float = _D["lateral"]
     lateral_fraction: float = _D["lateral_fraction"]
-    unseen_weight: float = _D["unseen_weight"]
 
 
 @dataclass(frozen=True)

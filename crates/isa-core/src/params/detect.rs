@@ -93,10 +93,6 @@ pub struct VerifyParams {
     pub tolerance: [f64; 2],
     /// What one seen-through cell costs against one agreeing. Default 1.
     pub violation_weight: f64,
-    /// What one unseen cell (hidden by something in front, or outside the image) counts in
-    /// the denominator against one seen: below 1, a half-hidden object is not marked down to
-    /// half. Default 1.
-    pub unseen_weight: f64,
     /// Grid cell side in units of the shape's point spacing. Default 2.
     pub cell_spacing: f64,
     /// Smallest cell (pixels). Default 2.
@@ -114,7 +110,6 @@ impl Default for VerifyParams {
         Self {
             tolerance: DEPTH_TOLERANCE,
             violation_weight: 1.0,
-            unseen_weight: 1.0,
             cell_spacing: 2.0,
             min_cell_px: 2,
             min_cells: 20,
@@ -128,7 +123,6 @@ impl VerifyParams {
     pub fn validate(&self) -> Result<()> {
         tolerance("verify.tolerance", self.tolerance)?;
         non_negative("verify.violation_weight", self.violation_weight)?;
-        non_negative("verify.unseen_weight", self.unseen_weight)?;
         positive("verify.cell_spacing", self.cell_spacing)?;
         non_negative("verify.lateral", self.lateral)?;
         non_negative("verify.lateral_fraction", self.lateral_fraction)?;
@@ -224,10 +218,6 @@ pub struct DetectParams {
     pub turns: usize,
     /// Hypotheses per category whose size is fitted. Default 8.
     pub size_top: usize,
-    /// Best hypotheses per category also verified with every other category's shapes at their
-    /// place (box centre on the floor, yaw and its quarter turns); one another category fits
-    /// better is handed to it (shape, pose and size fitted). 0: off. Default 0.
-    pub cross_check: usize,
     /// Best shapes tried in the size fit. Default 3.
     pub size_shapes: usize,
     /// Scale factors tried per axis. Default [0.85, 1.15].
@@ -262,7 +252,6 @@ impl Default for DetectParams {
             refine_top: 5,
             turns: 1,
             size_top: 8,
-            cross_check: 0,
             size_shapes: 3,
             size_steps: vec![0.85, 1.15],
             quick_points: Some(1000),

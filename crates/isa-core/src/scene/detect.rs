@@ -318,87 +318,6 @@ fn fit_size(
     c.t = t;
 }
 
-/// The best `p.cross_check` candidates of each category verified with every other category's
-/// shapes at their place: each shape's box centre on the candidate's, set on the floor, at the
-/// candidate's yaw and its quarter turns (categories' fronts need not agree). A candidate that
-/// another category's best shape (size fitted) verifies better than its own is handed to that
-/// category: similar shapes (a chair and a toilet) are told apart by which fits, not by which
-/// forest happened to vote there.
-fn cross_check(
-    per_cat: &mut [Vec<Cand>],
-    libs: &[(Option<&ShapeLibrary>, Option<SizeRange>)],
-    sc: &Scene<'_>,
-    vp: &VerifyParams,
-    p: &DetectParams,
-) {
-    let jobs: Vec<(usize, usize)> = per_cat
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| libs[*i].0.is_some())
-        .flat_map(|(i, cands)| top(cands, p.cross_check).into_iter().map(move |k| (i, k)))
-        .collect();
-    let moved: Vec<Option<(usize, usize, usize, Cand)>> = jobs
-        .par_iter()
-        .map(|&(i, k)| {
-            let c = &per_cat[i][k];
-            let own = libs[i].0.expect("filtered above");
-            let s0 = c.shape?;
-            let oc = own.centre(s0);
-            let centre = c.r * Vector3::from([0, 1, 2].map(|a| oc[a] * c.scale[a])) + c.t;
-            let mut best: Option<(f64, usize, Cand)> = None;
-            for (j, &(lib, range)) in libs.iter().enumerate() {
-                let Some(lib) = lib.filter(|_| j != i) else {
-                    continue;
-                };
-                let mut per_shape = vec![f64::NEG_INFINITY; lib.len()];
-                let mut cat_best: Option<(f64, usize, Pose)> = None;
-                for (s, shape_best) in per_shape.iter_mut().enumerate() {
-                    let lc = Vector3::from(lib.centre(s));
-                    for turn in 0..4 {
-                        let angle = std::f64::consts::FRAC_PI_2 * turn as f64;
-                        let r = sc.rg_inv * rot_z(angle) * sc.rg * c.r;
-                        let t = centre - r * lc;
-                        let (v, t) = sc.verify_scaled(&r, &t, lib, s, [1.0; 3], vp, p.quick_points);
-                        *shape_best = shape_best.max(v.score);
-                        if cat_best.as_ref().is_none_or(|b| v.score > b.0) {
-                            cat_best = Some((v.score, s, (r, t)));
-                        }
-                    }
-                }
-                let Some((_, s, (r, t))) = cat_best else {
-                    continue;
-                };
-                let mut order: Vec<usize> = (0..lib.len()).collect();
-                order.sort_by(|&a, &b| per_shape[b].total_cmp(&per_shape[a]));
-                let mut nc = Cand {
-                    r,
-                    t,
-                    shape: Some(s),
-                    scale: [1.0; 3],
-                    turn: 0,
-                    shape_order: order,
-                    refined: false,
-                    ..c.clone()
-                };
-                fit_size(&mut nc, lib, range, sc, vp, p);
-                if nc.score > c.score && best.as_ref().is_none_or(|b| nc.score > b.0) {
-                    best = Some((nc.score, j, nc));
-                }
-            }
-            best.map(|(_, j, nc)| (i, k, j, nc))
-        })
-        .collect();
-    // Handed-over candidates leave their category (indices from the highest, per category).
-    let mut gone: Vec<(usize, usize)> = moved.iter().flatten().map(|m| (m.0, m.1)).collect();
-    gone.sort_unstable_by(|a, b| b.cmp(a));
-    for (i, k) in gone {
-        per_cat[i].remove(k);
-    }
-    for (_, _, j, nc) in moved.into_iter().flatten() {
-        per_cat[j].push(nc);
-    }
-}
-
 /// Indices of the best `n` candidates by score (ties: the earlier).
 fn top(cands: &[Cand], n: usize) -> Vec<usize> {
     let mut order: Vec<usize> = (0..cands.len()).collect();
@@ -593,13 +512,6 @@ pub fn detect(
         });
     }
     lap("refine", &mut secs);
-    if p.cross_check > 0 {
-        if let Some(vp) = &p.verify {
-            let libs: Vec<_> = models.iter().map(|m| (m.shapes, m.size_range)).collect();
-            cross_check(&mut per_cat, &libs, &sc, vp, p);
-        }
-    }
-    lap("cross_check", &mut secs);
     let mut dets = Vec::new();
     for (m, cands) in models.iter().zip(per_cat) {
         let verified = m.shapes.is_some() && p.verify.is_some();
@@ -661,71 +573,5 @@ pub fn upright_box(d: &Detection, rg: &Matrix3<f64>) -> UprightBox {
         size: d.size,
         yaw: yaw_of(&(rg * r)),
         score: d.score,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::super::shapes::tests::box_library;
-    use super::super::verify::tests::box_scene;
-    use super::*;
-
-    /// A candidate of the wrong category at the object's place: a tall "a" box hypothesis on a
-    /// wide, low box in the scene. Cross-checking hands it to category "b", whose wide box fits,
-    /// with the box on the floor where the object stands.
-    #[test]
-    fn cross_check_hands_a_candidate_to_the_category_that_fits() {
-        let wide = [1.0, 0.6, 0.5];
-        let (depth, cam, r, t, rg) = box_scene(wide, 0.4);
-        let sc = Scene {
-            ev: Evidence {
-                frame: Frame::new(&depth, cam).unwrap(),
-                planes: None,
-            },
-            rg,
-            rg_inv: rg.transpose(),
-            floor: Some(-1.2), // the camera stands 1.2 m above the floor (upright frame)
-        };
-        let tall = box_library([0.4, 0.4, 1.4], 24);
-        let flat = box_library(wide, 24);
-        let vp = VerifyParams::default();
-        let p = DetectParams {
-            cross_check: 1,
-            ..DetectParams::default()
-        };
-        let mut c = Cand {
-            r,
-            t,
-            forest_score: 1.0,
-            support: 1,
-            rank: 0,
-            tilt_deg: 0.0,
-            score: 0.0,
-            shape: None,
-            scale: [1.0; 3],
-            turn: 0,
-            shape_order: vec![],
-            refined: false,
-        };
-        score_shapes(&mut c, &tall, &sc, &vp, &p);
-        let own = c.score;
-        let libs = [(Some(&tall), None), (Some(&flat), None)];
-        let mut per_cat = vec![vec![c.clone()], vec![]];
-        cross_check(&mut per_cat, &libs, &sc, &vp, &p);
-        assert!(per_cat[0].is_empty(), "{per_cat:?}");
-        let moved = &per_cat[1][0];
-        assert!(
-            moved.score > own + 0.2 && moved.score > 0.8,
-            "{own} -> {moved:?}"
-        );
-        // The wide box's centre where the object's is (0.25 m above the floor, 3.2 m ahead).
-        let centre = moved.r * Vector3::from(flat.centre(0)) + moved.t;
-        let truth = r * Vector3::new(0.0, 0.0, 0.25) + t;
-        assert!((centre - truth).norm() < 0.05, "{centre} vs {truth}");
-        // The category that fits keeps its candidate.
-        let mut kept = vec![vec![], vec![moved.clone()]];
-        cross_check(&mut kept, &libs, &sc, &vp, &p);
-        assert_eq!((kept[0].len(), kept[1].len()), (0, 1));
-        assert_eq!(kept[1][0].score, moved.score);
     }
 }
