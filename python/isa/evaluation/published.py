@@ -23,6 +23,7 @@ from isa.categories import CATEGORIES
 
 __all__ = ["POSE_RECALL", "DETECTION_AP", "PRINTED_MEANS", "mean", "table_rows"]
 
+# The rows of one printed table look alike by nature (`duplicates` pairs runs of them).
 #: Table 2 row by row as printed: (side, method, bed, chair, table, toilet, mean column); the
 #: category columns are in the order of :data:`isa.categories.CATEGORIES`, as in the paper.
 _TABLE2: list[tuple[str, str, float, float, float, float, float]] = [
