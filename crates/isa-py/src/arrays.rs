@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyList;
 
 use isa_core::criterion::RawTargets;
-use isa_core::{DepthStore, Part};
+use isa_core::{DepthStore, Part, TrainingSet};
 
 use crate::errors::input_err;
 
@@ -112,13 +112,23 @@ pub fn depth_store(images: &Bound<'_, PyAny>) -> PyResult<DepthStore> {
     Ok(store)
 }
 
+/// The rows of a checked C-contiguous `dtype` array of shape `(n, N)` (`want` names the dtype
+/// for messages, as in [`array`]).
+pub fn fixed_rows<T: Element + Copy, const N: usize>(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    want: &str,
+) -> PyResult<Vec<[T; N]>> {
+    let a = array::<T>(obj, name, want, &[None, Some(N)])?;
+    Ok(as_slice(&a, name)?
+        .chunks_exact(N)
+        .map(|c| c.try_into().expect("rows of N values"))
+        .collect())
+}
+
 /// Copies `(P, 3)` int32 parts.
 pub fn parts(obj: &Bound<'_, PyAny>) -> PyResult<Vec<Part>> {
-    let a = array::<i32>(obj, "parts", "int32", &[None, Some(3)])?;
-    Ok(as_slice(&a, "parts")?
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
-        .collect())
+    fixed_rows(obj, "parts", "int32")
 }
 
 /// A checked C-contiguous float32 array of `shape` with finite values.
@@ -182,6 +192,42 @@ impl<'py> Targets<'py> {
             rotations: flat(&self.rotations),
             link_angles: self.link_angles.as_ref().map(cols),
             node_offsets: self.node_offsets.as_ref().map(cols),
+        }
+    }
+}
+
+/// The depth crops and parts of a training set as `Forest.fit` and `write_trainset` take them
+/// (`images`, `parts`), to which [`TrainParts::targets`] adds the per-part targets.
+pub struct TrainParts {
+    pub store: DepthStore,
+    pub parts: Vec<Part>,
+}
+
+impl TrainParts {
+    pub fn new(images: &Bound<'_, PyAny>, parts: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let store = depth_store(images)?;
+        let parts = self::parts(parts)?;
+        Ok(TrainParts { store, parts })
+    }
+
+    /// The [`Targets`] of these parts (one row per part).
+    pub fn targets<'py>(
+        &self,
+        offsets: &Bound<'py, PyAny>,
+        rotations: &Bound<'py, PyAny>,
+        link_angles: Option<&Bound<'py, PyAny>>,
+        node_offsets: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Targets<'py>> {
+        let n = Some(self.parts.len());
+        Targets::new(n, offsets, rotations, link_angles, node_offsets)
+    }
+
+    /// The core's training set: these parts with `targets`.
+    pub fn training_set<'a>(&'a self, targets: &'a Targets<'_>) -> TrainingSet<'a> {
+        TrainingSet {
+            store: &self.store,
+            parts: &self.parts,
+            targets: targets.raw(),
         }
     }
 }

@@ -20,10 +20,10 @@ use isa_core::metadata::split_metadata;
 use isa_core::model_io::decode_tree;
 use isa_core::shards::{Manifest, ShardSet};
 use isa_core::vote as core_vote;
-use isa_core::{Forest, ForestParams, ModelMetadata, PredictParams, TrainingSet, Valid};
+use isa_core::{DepthStore, Forest, ForestParams, ModelMetadata, Part, PredictParams, Valid};
 
 use crate::arrays::{
-    as_slice, depth_store, f32_array, matrix, parts as parts_arg, rows, vector, Targets,
+    as_slice, depth_store, f32_array, matrix, parts as parts_arg, rows, vector, TrainParts,
 };
 use crate::errors::{input_err, to_py};
 use crate::params::{forest_params, json_to_py, kwargs_json};
@@ -113,6 +113,45 @@ impl PyForest {
         });
         Ok(())
     }
+
+    /// Runs `fit(params, n_threads, on_tree hook)` without the GIL on this forest's parameters
+    /// and keeps the result ([`PyForest::finish`]): `fit` and `fit_shards`.
+    fn train(
+        &self,
+        py: Python<'_>,
+        defaults: Valid<PredictParams>,
+        on_tree: Option<Py<PyAny>>,
+        fit: impl FnOnce(
+                &Valid<ForestParams>,
+                Option<usize>,
+                &(dyn Fn(usize) + Sync),
+            ) -> isa_core::Result<Forest>
+            + Send,
+    ) -> PyResult<()> {
+        let params = self.state().params;
+        let threads = self.threads();
+        let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
+        let forest = py.detach(|| fit(&params, threads, &tree_hook(&on_tree, &hook_err)));
+        self.finish(params, forest, defaults, hook_err)
+    }
+
+    /// Runs `run(forest, images, parts)` without the GIL with this forest's thread setting:
+    /// `apply` and `votes`.
+    fn on_parts<T: Send>(
+        &self,
+        py: Python<'_>,
+        images: &Bound<'_, PyAny>,
+        parts: &Bound<'_, PyAny>,
+        run: impl FnOnce(&Forest, &DepthStore, &[Part]) -> isa_core::Result<T> + Send,
+    ) -> PyResult<T> {
+        let f = self.fitted()?;
+        let store = depth_store(images)?;
+        let parts = parts_arg(parts)?;
+        let threads = self.threads();
+        py.detach(|| isa_core::forest::with_threads(threads, || run(&f, &store, &parts)))
+            .map_err(to_py)?
+            .map_err(to_py)
+    }
 }
 
 /// A model's metadata and inference defaults from ``metadata`` JSON and ``predict_defaults``.
@@ -169,7 +208,7 @@ impl PyForest {
     /// those. ``on_tree(trees_done)``, if given, is called after each tree (for a progress bar);
     /// its first exception is raised once training ends.
     // Its arguments are `write_trainset`'s on purpose (the file holds what `isa train` fits on;
-    // both convert them with `arrays::Targets`); `duplicates` lists the pair, and
+    // both convert them with `arrays::TrainParts`); `duplicates` lists the pair, and
     // `refine_pose`'s list of `&Bound<PyAny>` arguments looks alike to it too.
     #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata=String::from("{}"), on_tree=None, predict_defaults=None))]
     #[allow(clippy::too_many_arguments)]
@@ -187,34 +226,12 @@ impl PyForest {
         predict_defaults: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<()> {
         let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
-        let store = depth_store(images)?;
-        let parts = parts_arg(parts)?;
-        let targets = Targets::new(
-            Some(parts.len()),
-            offsets,
-            rotations,
-            link_angles,
-            node_offsets,
-        )?;
-        let raw = targets.raw();
-        let params = self.state().params;
-        let threads = self.threads();
-        let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
-        let forest = py.detach(|| {
-            let data = TrainingSet {
-                store: &store,
-                parts: &parts,
-                targets: raw,
-            };
-            Forest::fit_with_progress(
-                &params,
-                &data,
-                meta,
-                threads,
-                &tree_hook(&on_tree, &hook_err),
-            )
-        });
-        self.finish(params, forest, defaults, hook_err)
+        let train = TrainParts::new(images, parts)?;
+        let targets = train.targets(offsets, rotations, link_angles, node_offsets)?;
+        let data = train.training_set(&targets);
+        self.train(py, defaults, on_tree, |params, threads, hook| {
+            Forest::fit_with_progress(params, &data, meta, threads, hook)
+        })
     }
 
     /// Trains from a shard folder (``isa_core::shards``: ``manifest.json`` and its ``.isat``
@@ -230,20 +247,9 @@ impl PyForest {
         predict_defaults: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<()> {
         let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
-        let params = self.state().params;
-        let threads = self.threads();
-        let hook_err: Mutex<Option<PyErr>> = Mutex::new(None);
-        let forest = py.detach(|| {
-            let set = ShardSet::open(&shards)?;
-            Forest::fit_shards(
-                &params,
-                &set,
-                meta,
-                threads,
-                &tree_hook(&on_tree, &hook_err),
-            )
-        });
-        self.finish(params, forest, defaults, hook_err)
+        self.train(py, defaults, on_tree, |params, threads, hook| {
+            Forest::fit_shards(params, &ShardSet::open(&shards)?, meta, threads, hook)
+        })
     }
 
     /// Assembles the forest from its trees' bytes (``ShardTrainer.fit_tree(t)`` for every tree
@@ -339,16 +345,11 @@ impl PyForest {
         images: &Bound<'py, PyAny>,
         parts: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<i32>>> {
-        let f = self.fitted()?;
-        let store = depth_store(images)?;
-        let parts = parts_arg(parts)?;
-        let threads = self.threads();
-        let leaves = py
-            .detach(|| isa_core::forest::with_threads(threads, || f.apply(&store, &parts)))
-            .map_err(to_py)?
-            .map_err(to_py)?;
+        let (leaves, n_parts, n_trees) = self.on_parts(py, images, parts, |f, store, parts| {
+            Ok((f.apply(store, parts)?, parts.len(), f.n_trees()))
+        })?;
         let v: Vec<i32> = leaves.into_iter().map(|x| x as i32).collect();
-        Ok(matrix(py, parts.len(), f.n_trees(), v))
+        Ok(matrix(py, n_parts, n_trees, v))
     }
 
     /// Every vote of every part through every tree, as a dict of flat arrays (V = number of
@@ -360,14 +361,9 @@ impl PyForest {
         images: &Bound<'py, PyAny>,
         parts: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let f = self.fitted()?;
-        let store = depth_store(images)?;
-        let parts = parts_arg(parts)?;
-        let threads = self.threads();
-        let votes = py
-            .detach(|| isa_core::forest::with_threads(threads, || f.part_votes(&store, &parts)))
-            .map_err(to_py)?
-            .map_err(to_py)?;
+        let votes = self.on_parts(py, images, parts, |f, store, parts| {
+            f.part_votes(store, parts)
+        })?;
         let d = PyDict::new(py);
         d.set_item(
             "part",

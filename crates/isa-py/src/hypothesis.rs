@@ -28,6 +28,27 @@ const KEYS: [&str; 8] = [
 #[pyclass(name = "Hypothesis", module = "isa._core", frozen)]
 pub struct PyHypothesis {
     h: CoreHypothesis,
+    // The scalar fields, copied from `h` so that pyo3 makes their getters.
+    #[pyo3(get)]
+    score: f64,
+    #[pyo3(get)]
+    support: usize,
+    #[pyo3(get)]
+    position_score: f64,
+    #[pyo3(get)]
+    position_support: usize,
+}
+
+impl From<CoreHypothesis> for PyHypothesis {
+    fn from(h: CoreHypothesis) -> Self {
+        PyHypothesis {
+            score: h.score,
+            support: h.support,
+            position_score: h.position_score,
+            position_support: h.position_support,
+            h,
+        }
+    }
 }
 
 impl PyHypothesis {
@@ -75,25 +96,6 @@ impl PyHypothesis {
     fn quaternion<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         vector(py, self.h.quaternion.to_vec())
     }
-    // One getter per scalar field (pyo3 makes each its own descriptor); `duplicates` pairs
-    // their like shapes, and there is nothing between them to share.
-    #[getter]
-    fn score(&self) -> f64 {
-        self.h.score
-    }
-    #[getter]
-    fn support(&self) -> usize {
-        self.h.support
-    }
-    #[getter]
-    fn position_score(&self) -> f64 {
-        self.h.position_score
-    }
-    #[getter]
-    fn position_support(&self) -> usize {
-        self.h.position_support
-    }
-
     fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
         self.item(py, key)
             .ok_or_else(|| PyKeyError::new_err(key.to_string()))
@@ -148,7 +150,7 @@ impl PyHypothesis {
 
 /// Python list of hypotheses, best first.
 pub fn to_list<'py>(py: Python<'py>, hyps: Vec<CoreHypothesis>) -> PyResult<Bound<'py, PyList>> {
-    PyList::new(py, hyps.into_iter().map(|h| PyHypothesis { h }))
+    PyList::new(py, hyps.into_iter().map(PyHypothesis::from))
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

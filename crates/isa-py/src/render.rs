@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 
 use isa_core::render::{render_depth as core_render, RenderCamera};
 
-use crate::arrays::{array, as_slice, describe, matrix};
+use crate::arrays::{describe, fixed_rows, matrix};
 use crate::errors::{input_err, to_py};
 use crate::predict::intrinsics;
 use crate::scalars::{count, number};
@@ -20,10 +20,9 @@ fn faces(obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> {
         obj: &Bound<'_, PyAny>,
         want: &str,
     ) -> PyResult<Vec<[u32; 3]>> {
-        let a = array::<T>(obj, "faces", want, &[None, Some(3)])?;
-        let flat = as_slice(&a, "faces")?;
-        let mut out = Vec::with_capacity(flat.len() / 3);
-        for (k, c) in flat.chunks_exact(3).enumerate() {
+        let rows = fixed_rows::<T, 3>(obj, "faces", want)?;
+        let mut out = Vec::with_capacity(rows.len());
+        for (k, c) in rows.iter().enumerate() {
             let mut f = [0u32; 3];
             for (j, (dst, &src)) in f.iter_mut().zip(c).enumerate() {
                 *dst = src.try_into().map_err(|_| {
@@ -62,6 +61,9 @@ fn faces(obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> {
 /// `X_cam = R @ X_obj + t`, through `K` (OpenCV, pixel centres at integers) in a
 /// `width` x `height` image between `znear` and `zfar` metres. Both windings of every face are
 /// drawn; the nearest face wins.
+// Each Python argument is its own `&Bound<PyAny>`, checked in the body so that errors name it;
+// `duplicates` pairs the list by shape with `verify_pose`'s (two public signatures, no shared
+// logic).
 #[pyfunction]
 #[pyo3(signature = (vertices, faces, R, t, K, width, height, znear, zfar))]
 #[allow(non_snake_case, clippy::too_many_arguments, clippy::type_complexity)]
@@ -77,11 +79,7 @@ pub fn render_depth<'py>(
     zfar: &Bound<'py, PyAny>,
 ) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<bool>>)> {
     let py = vertices.py();
-    let v = array::<f32>(vertices, "vertices", "float32", &[None, Some(3)])?;
-    let v: Vec<[f32; 3]> = as_slice(&v, "vertices")?
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
-        .collect();
+    let v = fixed_rows::<f32, 3>(vertices, "vertices", "float32")?;
     let f = self::faces(faces)?;
     let r: [[f64; 3]; 3] = R
         .extract()

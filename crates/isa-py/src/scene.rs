@@ -15,7 +15,7 @@ use serde_json::Value;
 use isa_core::params::{overlay_json, DetectParams, PlaneParams, RefineParams, VerifyParams};
 use isa_core::scene::{self, planes::Planes, Camera, Frame, ShapeLibrary, SizeRange};
 
-use crate::arrays::{array, as_slice, describe, given, rows, set_fields, vector};
+use crate::arrays::{array, as_slice, describe, fixed_rows, given, rows, set_fields, vector};
 use crate::errors::{input_err, to_py};
 use crate::hypothesis::PyHypothesis;
 use crate::params::json_to_py;
@@ -75,11 +75,8 @@ fn depth_frame<'py>(
 }
 
 fn points_f64(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Vector3<f64>>> {
-    let a = array::<f64>(obj, name, "float64", &[None, Some(3)])?;
-    Ok(as_slice(&a, name)?
-        .chunks_exact(3)
-        .map(|c| Vector3::new(c[0], c[1], c[2]))
-        .collect())
+    let rows = fixed_rows::<f64, 3>(obj, name, "float64")?;
+    Ok(rows.into_iter().map(Vector3::from).collect())
 }
 
 /// A category's shape library (see `isa_core::scene::shapes`): surface samples (S, N, 3) and
@@ -348,9 +345,8 @@ pub fn refine_pose<'py>(
 #[pyfunction]
 #[pyo3(signature = (boxes, iou=0.25, overlap=0.6))]
 pub fn nms_across(boxes: &Bound<'_, PyAny>, iou: f64, overlap: f64) -> PyResult<Vec<usize>> {
-    let a = array::<f64>(boxes, "boxes", "float64", &[None, Some(8)])?;
-    let b: Vec<scene::nms::UprightBox> = as_slice(&a, "boxes")?
-        .chunks_exact(8)
+    let b: Vec<scene::nms::UprightBox> = fixed_rows::<f64, 8>(boxes, "boxes", "float64")?
+        .into_iter()
         .map(|c| scene::nms::UprightBox {
             centre: [c[0], c[1], c[2]],
             size: [c[3], c[4], c[5]],

@@ -8,14 +8,14 @@ use pyo3::types::{PyDict, PyList};
 
 use isa_core::trainset_io::{self, TrainSetData};
 
-use crate::arrays::{depth_store, matrix, parts as parts_arg, rows, Targets};
+use crate::arrays::{matrix, rows, TrainParts};
 use crate::errors::to_py;
 
 /// Writes a training-set file (`.isat`, see `isa_core::trainset_io`) for `isa train`: the same
 /// arguments as `Forest.fit` (images: list of (h, w) uint16 crops; parts (P, 3) int32; offsets
 /// (P, 3), rotations (P, 4), link_angles (P, L), node_offsets (P, 3N) float32) plus metadata JSON.
 // Its array arguments are `Forest.fit`'s on purpose (the public API; converted by the same
-// `arrays::Targets`).
+// `arrays::TrainParts`).
 #[pyfunction]
 #[pyo3(signature = (path, images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}"))]
 #[allow(clippy::too_many_arguments)]
@@ -30,20 +30,13 @@ pub fn write_trainset(
     node_offsets: Option<&Bound<'_, PyAny>>,
     metadata: &str,
 ) -> PyResult<()> {
-    let store = depth_store(images)?;
-    let parts = parts_arg(parts)?;
-    let t = Targets::new(
-        Some(parts.len()),
-        offsets,
-        rotations,
-        link_angles,
-        node_offsets,
-    )?;
-    let raw = t.raw();
+    let train = TrainParts::new(images, parts)?;
+    let targets = train.targets(offsets, rotations, link_angles, node_offsets)?;
+    let raw = targets.raw();
     let owned = |a: Option<(&[f32], usize)>| a.map(|(v, c)| (v.to_vec(), c));
     let ts = TrainSetData {
-        store,
-        parts,
+        store: train.store,
+        parts: train.parts,
         offsets: raw.offsets.to_vec(),
         rotations: raw.rotations.to_vec(),
         link_angles: owned(raw.link_angles),

@@ -3,6 +3,8 @@ formats (TUM, NYU) and the BOP format."""
 
 from isa._reexport import lazy_reexport
 
+# The subpackage's public names by module (a table, shaped like every subpackage's; `duplicates`
+# pairs it with evaluation's).
 __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
     "meshes": [
         "MESH_EXTENSIONS", "load_mesh", "object_origin", "real_size_scale", "rescale_to_real_size",

@@ -19,6 +19,8 @@ from isa.exceptions import InvalidValueError
 _D = _core.DETECT_DEFAULTS["planes"]
 
 
+# One typed field per parameter of the core's section (see stage_params): `duplicates` pairs the
+# field lists of the three stages by shape.
 @dataclass(frozen=True)
 class PlaneParams(StageParams):
     """Plane finding. ``tolerance`` ``(base, k)``: a point is on a plane within

@@ -22,6 +22,8 @@ __all__ = ["RefineParams", "Refinement", "upright_points", "refine_pose"]
 _D = _core.DETECT_DEFAULTS["refine"]
 
 
+# One typed field per parameter of the core's section (see stage_params): `duplicates` pairs the
+# field lists of the three stages by shape.
 @dataclass(frozen=True)
 class RefineParams(StageParams):
     """``iterations`` of ICP; the trimming distance falls from ``max_distance`` to

@@ -42,6 +42,8 @@ __all__ = ["VerifyParams", "Verification", "DepthEvidence", "verify_pose", "veri
 _D = _core.DETECT_DEFAULTS["verify"]
 
 
+# One typed field per parameter of the core's section (see stage_params): `duplicates` pairs the
+# field lists of the three stages by shape.
 @dataclass(frozen=True)
 class VerifyParams(StageParams):
     """``tolerance`` ``(base, k)``: a cell agrees within ``max(base, k * z**2)`` metres (Kinect

@@ -23,42 +23,37 @@ from isa.categories import CATEGORIES
 
 __all__ = ["POSE_RECALL", "DETECTION_AP", "PRINTED_MEANS", "mean", "table_rows"]
 
-#: Table 2 (left): 6D pose recall in percent on synthetic test renders of unseen instances.
-POSE_RECALL: dict[str, dict[str, float]] = {
-    "ISA (Q1)": {"bed": 39, "chair": 40, "table": 50, "toilet": 80},
-    "ISA (Q1 & Q2)": {"bed": 41, "chair": 37, "table": 53, "toilet": 89},
-    "ISA (Q1 & Q3)": {"bed": 39, "chair": 46, "table": 53, "toilet": 82},
-    "ISA (Q1 & Q2 & Q3)": {"bed": 46, "chair": 42, "table": 52, "toilet": 87},
-    "Linemod (min)": {"bed": 58, "chair": 5, "table": 9, "toilet": 27},
-    "Linemod (max)": {"bed": 62, "chair": 51, "table": 69, "toilet": 83},
-    "Linemod (all)": {"bed": 60, "chair": 32, "table": 37, "toilet": 58},
-}
+# The rows of one printed table look alike by nature (`duplicates` pairs runs of them).
+#: Table 2 row by row as printed: (side, method, bed, chair, table, toilet, mean column); the
+#: category columns are in the order of :data:`isa.categories.CATEGORIES`, as in the paper.
+_TABLE2: list[tuple[str, str, float, float, float, float, float]] = [
+    ("left", "ISA (Q1)", 39, 40, 50, 80, 52.25),
+    ("left", "ISA (Q1 & Q2)", 41, 37, 53, 89, 55.0),
+    ("left", "ISA (Q1 & Q3)", 39, 46, 53, 82, 55.0),
+    ("left", "ISA (Q1 & Q2 & Q3)", 46, 42, 52, 87, 56.75),
+    ("left", "Linemod (min)", 58, 5, 9, 27, 25),
+    ("left", "Linemod (max)", 62, 51, 69, 83, 66),
+    ("left", "Linemod (all)", 60, 32, 37, 58, 47),
+    ("right", "Sliding Shapes", 33.5, 29.0, 34.5, 67.3, 41.075),
+    ("right", "Gupta et al. on instance seg.", 71.0, 18.2, 30.4, 63.4, 45.75),
+    ("right", "Gupta et al. on estimated model", 72.7, 47.5, 40.6, 72.7, 58.375),
+    ("right", "Deep Sliding Shapes", 83.0, 58.8, 68.6, 79.2, 72.40),
+    ("right", "ISA (Q1 & Q2 & Q3)", 52.0, 36.0, 46.5, 67.7, 50.55),
+]
 
-# The two tables are alike in form as the paper's are (a row of four category values per method).
+
+def _side(side: str) -> dict[str, dict[str, float]]:
+    return {method: dict(zip(CATEGORIES, values)) for s, method, *values, _ in _TABLE2 if s == side}
+
+
+#: Table 2 (left): 6D pose recall in percent on synthetic test renders of unseen instances.
+POSE_RECALL: dict[str, dict[str, float]] = _side("left")
+
 #: Table 2 (right): 3D detection AP in percent on RMRC / NYU Depth v2 frames (IoU >= 0.25).
-DETECTION_AP: dict[str, dict[str, float]] = {
-    "Sliding Shapes": {"bed": 33.5, "chair": 29.0, "table": 34.5, "toilet": 67.3},
-    "Gupta et al. on instance seg.": {"bed": 71.0, "chair": 18.2, "table": 30.4, "toilet": 63.4},
-    "Gupta et al. on estimated model": {"bed": 72.7, "chair": 47.5, "table": 40.6, "toilet": 72.7},
-    "Deep Sliding Shapes": {"bed": 83.0, "chair": 58.8, "table": 68.6, "toilet": 79.2},
-    "ISA (Q1 & Q2 & Q3)": {"bed": 52.0, "chair": 36.0, "table": 46.5, "toilet": 67.7},
-}
+DETECTION_AP: dict[str, dict[str, float]] = _side("right")
 
 #: The mean column exactly as printed in the paper, per (table, method).
-PRINTED_MEANS: dict[tuple[str, str], float] = {
-    ("left", "ISA (Q1)"): 52.25,
-    ("left", "ISA (Q1 & Q2)"): 55.0,
-    ("left", "ISA (Q1 & Q3)"): 55.0,
-    ("left", "ISA (Q1 & Q2 & Q3)"): 56.75,
-    ("left", "Linemod (min)"): 25,
-    ("left", "Linemod (max)"): 66,
-    ("left", "Linemod (all)"): 47,
-    ("right", "Sliding Shapes"): 41.075,
-    ("right", "Gupta et al. on instance seg."): 45.75,
-    ("right", "Gupta et al. on estimated model"): 58.375,
-    ("right", "Deep Sliding Shapes"): 72.40,
-    ("right", "ISA (Q1 & Q2 & Q3)"): 50.55,
-}
+PRINTED_MEANS: dict[tuple[str, str], float] = {(side, method): m for side, method, *_, m in _TABLE2}
 
 
 def mean(row: Mapping[str, float]) -> float:

@@ -97,6 +97,7 @@ pub struct PartVote {
 }
 
 /// A trained forest, its metadata and its inference defaults.
+// Plain fields (`duplicates` pairs them by shape with `DetectParams`'; nothing shared).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Forest {
     pub params: ForestParams,
@@ -451,6 +452,15 @@ pub(crate) mod tests {
         }
     }
 
+    /// [`toy_params`] with bagging and sampled split scores (the paths a tree's RNG drives).
+    pub(crate) fn sampled_params() -> ForestParams {
+        ForestParams {
+            max_score_samples: 300,
+            bag_fraction: 0.7,
+            ..toy_params()
+        }
+    }
+
     /// A Q1 training set (no privileged data) over the toy arrays.
     pub(crate) fn q1_set<'a>(
         store: &'a DepthStore,
@@ -505,13 +515,7 @@ pub(crate) mod tests {
     fn scoring_a_level_in_chunks_of_nodes_changes_no_tree() {
         let (store, parts, off, rot) = toy(3);
         let set = q1_set(&store, &parts, &off, &rot);
-        let p = ForestParams {
-            max_score_samples: 300,
-            bag_fraction: 0.7,
-            ..toy_params()
-        }
-        .check()
-        .unwrap();
+        let p = sampled_params().check().unwrap();
         let inputs = TrainInputs {
             store: &store,
             parts: &parts,
@@ -550,11 +554,7 @@ pub(crate) mod tests {
     fn deterministic_across_thread_counts() {
         let (store, parts, off, rot) = toy(2);
         let data = q1_set(&store, &parts, &off, &rot);
-        let p = ForestParams {
-            max_score_samples: 300,
-            bag_fraction: 0.7,
-            ..toy_params()
-        };
+        let p = sampled_params();
         // The model file of `p` fitted on `threads` threads.
         let bytes = |p: &ForestParams, threads: usize| {
             Forest::fit(

@@ -32,6 +32,15 @@ macro_rules! named {
 }
 pub(super) use named;
 
+/// `check(prefix + "field", self.field)?` for each `check(field)`, in order: one check a field,
+/// each error naming the field.
+macro_rules! checked {
+    ($s:expr, $prefix:literal; $($check:ident($f:ident)),+ $(,)?) => {
+        $( $check(concat!($prefix, stringify!($f)), $s.$f)?; )+
+    };
+}
+pub(super) use checked;
+
 /// Each `(name, count)` is at least 1.
 pub(super) fn at_least_one(counts: &[(&str, usize)]) -> Result<()> {
     match counts.iter().find(|(_, v)| *v == 0) {

@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use super::checks::{at_least_one, bad, named, non_negative, positive};
+use super::checks::{at_least_one, bad, checked, named, non_negative, positive};
 use super::overlay::overlay_json;
 use super::Valid;
 use crate::error::Result;
@@ -74,7 +74,7 @@ impl Default for PlaneParams {
 
 impl PlaneParams {
     pub fn validate(&self) -> Result<()> {
-        tolerance("planes.tolerance", self.tolerance)?;
+        checked!(self, "planes."; tolerance(tolerance));
         let fractions_and_lengths = named!(self, "planes.";
             min_floor_fraction, min_floor_drop, floor_search,
             min_wall_fraction, min_wall_height, min_wall_width);
@@ -121,12 +121,9 @@ impl Default for VerifyParams {
 
 impl VerifyParams {
     pub fn validate(&self) -> Result<()> {
-        tolerance("verify.tolerance", self.tolerance)?;
-        non_negative("verify.violation_weight", self.violation_weight)?;
-        positive("verify.cell_spacing", self.cell_spacing)?;
-        non_negative("verify.lateral", self.lateral)?;
-        non_negative("verify.lateral_fraction", self.lateral_fraction)?;
-        at_least_one(&[("verify.min_cell_px", self.min_cell_px)])
+        checked!(self, "verify."; tolerance(tolerance), non_negative(violation_weight),
+            positive(cell_spacing), non_negative(lateral), non_negative(lateral_fraction));
+        at_least_one(&named!(self, "verify."; min_cell_px))
     }
 }
 
@@ -175,11 +172,8 @@ impl Default for RefineParams {
 
 impl RefineParams {
     pub fn validate(&self) -> Result<()> {
-        positive("refine.max_distance", self.max_distance)?;
-        positive("refine.min_distance", self.min_distance)?;
-        non_negative("refine.margin", self.margin)?;
-        non_negative("refine.max_yaw_deg", self.max_yaw_deg)?;
-        non_negative("refine.max_shift", self.max_shift)?;
+        checked!(self, "refine."; positive(max_distance), positive(min_distance),
+            non_negative(margin), non_negative(max_yaw_deg), non_negative(max_shift));
         if self.iterations == 0 || self.cell_px == 0 || self.max_points == 0 {
             return bad(
                 "refine.iterations, cell_px and max_points",

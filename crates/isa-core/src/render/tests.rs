@@ -43,6 +43,11 @@ fn render(
     out
 }
 
+/// One triangle given in camera coordinates (identity pose).
+fn render_triangle(tri: &[[f32; 3]], c: &RenderCamera) -> DepthFrame {
+    render(tri, &[[0, 1, 2]], &I3, [0.0; 3], c)
+}
+
 /// A rectangle `[x0, x1] x [y0, y1]` in the object's z = 0 plane, two triangles.
 fn rect(x0: f32, x1: f32, y0: f32, y1: f32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
     let v = vec![[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]];
@@ -312,7 +317,7 @@ fn triangles_sharing_edges_cover_each_pixel_once() {
 fn assert_matches_ray_casting(tri: [[f64; 3]; 3], c: &RenderCamera, min_clipped: usize) {
     let v: Vec<[f32; 3]> = tri.iter().map(|p| p.map(|x| x as f32)).collect();
     let p = [0, 1, 2].map(|i| v[i].map(f64::from));
-    let out = render(&v, &[[0, 1, 2]], &I3, [0.0; 3], c);
+    let out = render_triangle(&v, c);
     let (mut clipped, mut drawn, mut max_err) = (0, 0, 0.0f64);
     let eps = 1e-9;
     for y in 0..c.height {
@@ -383,23 +388,11 @@ fn faces_crossing_the_near_plane_are_clipped() {
         &c,
         0,
     );
-    let out = render(
-        &[[-1.0, -1.0, 3.0], [1.0, -1.0, 3.0], [0.0, 1.0, 3.0]],
-        &[[0, 1, 2]],
-        &I3,
-        [0.0; 3],
-        &c,
-    );
+    let out = render_triangle(&[[-1.0, -1.0, 3.0], [1.0, -1.0, 3.0], [0.0, 1.0, 3.0]], &c);
     assert!(out.mask.iter().all(|m| !m), "a face beyond zfar is drawn");
     // Wholly behind the near plane.
     c.zfar = 20.0;
-    let out = render(
-        &[[-1.0, -1.0, 0.3], [1.0, -1.0, 0.3], [0.0, 1.0, 0.2]],
-        &[[0, 1, 2]],
-        &I3,
-        [0.0; 3],
-        &c,
-    );
+    let out = render_triangle(&[[-1.0, -1.0, 0.3], [1.0, -1.0, 0.3], [0.0, 1.0, 0.2]], &c);
     assert!(
         out.mask.iter().all(|m| !m),
         "a face nearer than znear is drawn"

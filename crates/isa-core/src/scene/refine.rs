@@ -12,6 +12,7 @@ use crate::params::RefineParams;
 
 /// The refined pose (object to camera), the RMS distance of the last pairs and their count, the
 /// yaw change (radians) and shift (metres) against the start, and whether it converged.
+// Plain fields (`duplicates` pairs them by shape with `DetectParams`'; nothing shared).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Refinement {
     pub r: Matrix3<f64>,

@@ -10,14 +10,59 @@ use super::PoseVote;
 /// Centres per block of [`gather`]: `[x, y, z]` lanes.
 pub(super) const GATHER_LANES: usize = 8;
 
+/// Centres packed [`GATHER_LANES`] to a block: a block's `[x, y, z]` lane arrays and each
+/// lane's centre index; the padding lanes of the last block lie far away (never hit).
+#[derive(Default)]
+pub(super) struct CentreBlocks {
+    pub(super) coords: Vec<[[f32; GATHER_LANES]; 3]>,
+    pub(super) ids: Vec<[u32; GATHER_LANES]>,
+    n: usize,
+}
+
+impl CentreBlocks {
+    pub(super) fn clear(&mut self) {
+        self.coords.clear();
+        self.ids.clear();
+        self.n = 0;
+    }
+
+    /// Adds centre `id` at `p` in the next lane.
+    pub(super) fn push(&mut self, id: u32, p: [f32; 3]) {
+        let l = self.n % GATHER_LANES;
+        self.n += 1;
+        if l == 0 {
+            self.coords.push([[1e18f32; GATHER_LANES]; 3]);
+            self.ids.push([0; GATHER_LANES]);
+        }
+        let b = self.coords.last_mut().expect("a block");
+        for a in 0..3 {
+            b[a][l] = p[a];
+        }
+        self.ids.last_mut().expect("a block")[l] = id;
+    }
+
+    pub(super) fn is_empty(&self) -> bool {
+        self.coords.is_empty()
+    }
+}
+
+/// Appends `index` to `out[id[l]]` for every lane `l` set in `mask` (both paths).
+#[inline(always)]
+fn push_hits(mut mask: u32, id: &[u32; GATHER_LANES], index: u32, out: &mut [Vec<u32>]) {
+    while mask != 0 {
+        let l = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        out[id[l] as usize].push(index);
+    }
+}
+
 /// [`gather`] on one chunk of votes whose first index is `base`: `out[c]` gets the indices
 /// within `sqrt(r2)` of centre `c` (same f32 operations on every path).
 #[inline(always)]
 pub(super) fn gather_chunk(
     chunk: &[PoseVote],
     base: usize,
-    blocks: &[[[f32; GATHER_LANES]; 3]],
-    ids: &[[u32; GATHER_LANES]],
+    centres: &CentreBlocks,
     r2: f32,
     out: &mut [Vec<u32>],
 ) {
@@ -27,7 +72,7 @@ pub(super) fn gather_chunk(
             continue;
         }
         let p = v.position;
-        for (b, id) in blocks.iter().zip(ids) {
+        for (b, id) in centres.coords.iter().zip(&centres.ids) {
             let mut mask = 0u32;
             // One lane index across the block's three coordinate arrays: the shape that the
             // portable twin of the AVX2 path is compared with.
@@ -36,18 +81,13 @@ pub(super) fn gather_chunk(
                 let (dx, dy, dz) = (p[0] - b[0][l], p[1] - b[1][l], p[2] - b[2][l]);
                 mask |= u32::from(dx * dx + dy * dy + dz * dz < r2) << l;
             }
-            while mask != 0 {
-                let l = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                out[id[l] as usize].push((base + i) as u32);
-            }
+            push_hits(mask, id, (base + i) as u32, out);
         }
     }
 }
 
 /// [`gather_chunk`] with AVX2 (the 8 lanes of a block in one register; the same IEEE
-/// operations in the same order, so the same answer). Its argument list is the portable twin's
-/// on purpose (`duplicates` lists the pair): `gather_paths_agree` compares the two.
+/// operations in the same order, so the same answer; `gather_paths_agree` compares the two).
 ///
 /// # Safety
 /// AVX2 must be available.
@@ -56,14 +96,14 @@ pub(super) fn gather_chunk(
 pub(super) unsafe fn gather_chunk_avx2(
     chunk: &[PoseVote],
     base: usize,
-    blocks: &[[[f32; GATHER_LANES]; 3]],
-    ids: &[[u32; GATHER_LANES]],
+    centres: &CentreBlocks,
     r2: f32,
     out: &mut [Vec<u32>],
 ) {
     use std::arch::x86_64::*;
     let r2v = _mm256_set1_ps(r2);
-    let bv: Vec<[__m256; 3]> = blocks
+    let bv: Vec<[__m256; 3]> = centres
+        .coords
         .iter()
         .map(|b| {
             [
@@ -82,7 +122,7 @@ pub(super) unsafe fn gather_chunk_avx2(
             _mm256_set1_ps(v.position[1]),
             _mm256_set1_ps(v.position[2]),
         );
-        for (b, id) in bv.iter().zip(ids) {
+        for (b, id) in bv.iter().zip(&centres.ids) {
             let (dx, dy, dz) = (
                 _mm256_sub_ps(px, b[0]),
                 _mm256_sub_ps(py, b[1]),
@@ -92,12 +132,8 @@ pub(super) unsafe fn gather_chunk_avx2(
                 _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)),
                 _mm256_mul_ps(dz, dz),
             );
-            let mut mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(d2, r2v)) as u32;
-            while mask != 0 {
-                let l = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                out[id[l] as usize].push((base + i) as u32);
-            }
+            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(d2, r2v)) as u32;
+            push_hits(mask, id, (base + i) as u32, out);
         }
     }
 }
@@ -107,7 +143,6 @@ pub(super) unsafe fn gather_chunk_avx2(
 /// block.
 pub(super) fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> Vec<Vec<u32>> {
     const CH: usize = 1 << 14;
-    const B: usize = GATHER_LANES;
     /// Votes per bounding box (consecutive votes come from neighbouring parts, so they are
     /// close in space and most boxes are far from most centres).
     const SUB: usize = 64;
@@ -131,8 +166,7 @@ pub(super) fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> V
         .enumerate()
         .map(|(ci, chunk)| {
             let mut out = vec![Vec::new(); centres.len()];
-            let mut blocks: Vec<[[f32; B]; 3]> = Vec::new();
-            let mut ids: Vec<[u32; B]> = Vec::new();
+            let mut blocks = CentreBlocks::default();
             for (si, sub) in chunk.chunks(SUB).enumerate() {
                 // Bounding box of the sub-block's votes (weight > 0).
                 let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
@@ -148,8 +182,6 @@ pub(super) fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> V
                 // The centres whose ball meets the box, packed 8 to a block (padding lanes far
                 // away: never hit).
                 blocks.clear();
-                ids.clear();
-                let mut n_sel = 0usize;
                 for (c, p) in cf.iter().enumerate() {
                     let d2: f64 = (0..3)
                         .map(|a| {
@@ -162,17 +194,7 @@ pub(super) fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> V
                     if d2 > prune2 {
                         continue;
                     }
-                    let l = n_sel % B;
-                    n_sel += 1;
-                    if l == 0 {
-                        blocks.push([[1e18f32; B]; 3]);
-                        ids.push([0; B]);
-                    }
-                    let b = blocks.last_mut().unwrap();
-                    for a in 0..3 {
-                        b[a][l] = p[a];
-                    }
-                    ids.last_mut().unwrap()[l] = c as u32;
+                    blocks.push(c as u32, *p);
                 }
                 if blocks.is_empty() {
                     continue;
@@ -181,11 +203,11 @@ pub(super) fn gather(votes: &[PoseVote], centres: &[[f64; 3]], radius: f64) -> V
                 #[cfg(target_arch = "x86_64")]
                 if avx2 {
                     // SAFETY: AVX2 is available.
-                    unsafe { gather_chunk_avx2(sub, base, &blocks, &ids, r2, &mut out) };
+                    unsafe { gather_chunk_avx2(sub, base, &blocks, r2, &mut out) };
                     continue;
                 }
                 let _ = avx2;
-                gather_chunk(sub, base, &blocks, &ids, r2, &mut out);
+                gather_chunk(sub, base, &blocks, r2, &mut out);
             }
             out
         })

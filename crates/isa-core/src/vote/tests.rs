@@ -1,8 +1,8 @@
 //! Tests of mode finding on synthetic vote clouds (clusters among outliers).
 
-#[cfg(target_arch = "x86_64")]
-use super::gather::gather_chunk_avx2;
 use super::gather::{gather, gather_chunk, GATHER_LANES};
+#[cfg(target_arch = "x86_64")]
+use super::gather::{gather_chunk_avx2, CentreBlocks};
 use super::*;
 use crate::error::expect_err;
 use rand::{Rng, SeedableRng};
@@ -142,26 +142,15 @@ fn gather_paths_agree() {
     }
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
-        let mut b = [[1e18f32; GATHER_LANES]; 3];
-        let blocks: Vec<[[f32; GATHER_LANES]; 3]> = centres
-            .chunks(GATHER_LANES)
-            .map(|blk| {
-                for (l, c) in blk.iter().enumerate() {
-                    for a in 0..3 {
-                        b[a][l] = c[a] as f32;
-                    }
-                }
-                b
-            })
-            .collect();
-        let ids: Vec<[u32; GATHER_LANES]> = (0..blocks.len())
-            .map(|bi| std::array::from_fn(|l| (bi * GATHER_LANES + l) as u32))
-            .collect();
-        let mut fast = vec![Vec::new(); blocks.len() * GATHER_LANES];
+        let mut blocks = CentreBlocks::default();
+        for (c, p) in centres.iter().enumerate() {
+            blocks.push(c as u32, p.map(|x| x as f32));
+        }
+        let mut fast = vec![Vec::new(); blocks.coords.len() * GATHER_LANES];
         let mut portable = fast.clone();
         // SAFETY: AVX2 is available.
-        unsafe { gather_chunk_avx2(&votes, 5, &blocks, &ids, r2, &mut fast) };
-        gather_chunk(&votes, 5, &blocks, &ids, r2, &mut portable);
+        unsafe { gather_chunk_avx2(&votes, 5, &blocks, r2, &mut fast) };
+        gather_chunk(&votes, 5, &blocks, r2, &mut portable);
         assert_eq!(fast, portable);
     }
 }
