@@ -93,6 +93,10 @@ pub struct VerifyParams {
     pub tolerance: [f64; 2],
     /// What one seen-through cell costs against one agreeing. Default 1.
     pub violation_weight: f64,
+    /// What one unexplained cell costs: observed surface inside the shape's box (shrunk by
+    /// `lateral`) but in front of the shape's surface or where the shape has none (a bed's solid
+    /// side under a table hypothesis' top). 0: not counted. Default 0.
+    pub unexplained_weight: f64,
     /// Grid cell side in units of the shape's point spacing. Default 2.
     pub cell_spacing: f64,
     /// Smallest cell (pixels). Default 2.
@@ -110,6 +114,7 @@ impl Default for VerifyParams {
         Self {
             tolerance: DEPTH_TOLERANCE,
             violation_weight: 1.0,
+            unexplained_weight: 0.0,
             cell_spacing: 2.0,
             min_cell_px: 2,
             min_cells: 20,
@@ -123,6 +128,7 @@ impl VerifyParams {
     pub fn validate(&self) -> Result<()> {
         tolerance("verify.tolerance", self.tolerance)?;
         non_negative("verify.violation_weight", self.violation_weight)?;
+        non_negative("verify.unexplained_weight", self.unexplained_weight)?;
         positive("verify.cell_spacing", self.cell_spacing)?;
         non_negative("verify.lateral", self.lateral)?;
         non_negative("verify.lateral_fraction", self.lateral_fraction)?;
