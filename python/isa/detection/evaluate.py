@@ -19,7 +19,9 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
   ``--foreground DIR``); every other variant votes without them;
 - ``nogravity``: ``refine`` without the scene's gravity (floor normal, else the votes' tilt);
 - ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one
-  (``fw0``: none).
+  (``fw0``: none);
+- ``unexplainedW``: ``refine`` with ``verify.unexplained_weight`` ``W`` (observed surface inside
+  a hypothesis' box that its shape does not explain costs ``W`` a cell).
 
 ``--shapes DIR`` holds ``<category>.shapes.npz`` (:func:`isa.detection.shapes.bop_shape_library`
 writes them from the training renders), ``--foreground DIR`` ``<category>.foreground.npz``.
@@ -61,7 +63,11 @@ def variant_params(name: str):
         return DetectParams()
     if name.startswith("fw"):
         return DetectParams(forest_weight=float(name[2:]))
-    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, fwW for any N, W)")
+    if name.startswith("unexplained"):
+        from isa.detection.verify import VerifyParams
+
+        return DetectParams(verify=VerifyParams(unexplained_weight=float(name[11:])))
+    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, fwW, unexplainedW for any N, W)")
 
 
 def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:

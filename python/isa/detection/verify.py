@@ -14,10 +14,16 @@ compared with the observed depth at its pixel, within the sensor tolerance ``max
 - **outside**: the cell falls outside the image (no evidence; the z-buffer spans the image
   and its size again around it).
 
-The score is ``(agree - violation_weight * violate) / (agree + violate + occluded + outside)``:
+With ``unexplained_weight`` > 0 (default 0) one more count enters, from the image's side:
+**unexplained**, a cell of observed surface inside the shape's box (grown by ``lateral``, above
+the floor) that lies in front of the shape's surface or where the shape has none (a bed's
+solid side under a table hypothesis' top).
+
+The score is ``(agree - violation_weight * violate - unexplained_weight * unexplained) /
+(agree + violate + occluded + outside)``:
 the share of the shape's surface facing the camera that the image confirms, minus what it
 refutes; a hypothesis mostly hidden or out of view cannot score high on the little that shows. It is a fraction
-in ``[-violation_weight, 1]`` whatever the frame, the category or the object's distance, so
+in ``[-violation_weight, 1]`` (lower with unexplained cells) whatever the frame, the category or the object's distance, so
 scores of different categories and frames can be ranked together. Verification runs on the raw
 depth (floor and walls kept): a hypothesis floating in front of a wall or sinking into the floor
 is refuted by exactly those pixels.
@@ -56,10 +62,13 @@ class VerifyParams(StageParams):
     training shapes: a leg 3 cm off is still a leg), also the reach of a free-space violation:
     only a cell whose whole ``lateral`` neighbourhood is seen through is refuted;
     ``lateral_fraction``: the detector widens ``lateral`` to this fraction of the shape's
-    diagonal (a bed's parts vary by more centimetres than a chair's). Defaults: the core's."""
+    diagonal (a bed's parts vary by more centimetres than a chair's); ``unexplained_weight`` what
+    one cell of observed surface inside the shape's box but in front of its surface, or where it
+    has none, costs (0: not counted). Defaults: the core's."""
 
     tolerance: tuple[float, float] = tuple(_D["tolerance"])  # type: ignore[assignment]
     violation_weight: float = _D["violation_weight"]
+    unexplained_weight: float = _D["unexplained_weight"]
     cell_spacing: float = _D["cell_spacing"]
     min_cell_px: int = _D["min_cell_px"]
     min_cells: int = _D["min_cells"]

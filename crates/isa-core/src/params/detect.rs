@@ -93,6 +93,10 @@ pub struct VerifyParams {
     pub tolerance: [f64; 2],
     /// What one seen-through cell costs against one agreeing. Default 1.
     pub violation_weight: f64,
+    /// What one unexplained cell costs: observed surface inside the shape's box (shrunk by
+    /// `lateral`) but in front of the shape's surface or where the shape has none (a bed's solid
+    /// side under a table hypothesis' top). 0: not counted. Default 0.
+    pub unexplained_weight: f64,
     /// Grid cell side in units of the shape's point spacing. Default 2.
     pub cell_spacing: f64,
     /// Smallest cell (pixels). Default 2.
@@ -110,6 +114,7 @@ impl Default for VerifyParams {
         Self {
             tolerance: DEPTH_TOLERANCE,
             violation_weight: 1.0,
+            unexplained_weight: 0.0,
             cell_spacing: 2.0,
             min_cell_px: 2,
             min_cells: 20,
@@ -122,7 +127,8 @@ impl Default for VerifyParams {
 impl VerifyParams {
     pub fn validate(&self) -> Result<()> {
         checked!(self, "verify."; tolerance(tolerance), non_negative(violation_weight),
-            positive(cell_spacing), non_negative(lateral), non_negative(lateral_fraction));
+            non_negative(unexplained_weight), positive(cell_spacing), non_negative(lateral),
+            non_negative(lateral_fraction));
         at_least_one(&named!(self, "verify."; min_cell_px))
     }
 }

@@ -6,7 +6,9 @@
 //! spanning `lateral` metres around it: **agree** (an object surface within tolerance),
 //! **violate** (seen through, or a wall/floor in front), **occluded** (something not a plane in
 //! front, or the shape lies on a plane), **missing** (no depth), **outside** (out of the image).
-//! Score `(agree - w violate) / (agree + violate + occluded + outside)`, 0 under `min_cells`.
+//! With `unexplained_weight` > 0, cells of observed surface inside the shape's box but in front
+//! of its surface or where it has none are **unexplained** too. Score `(agree - w violate - u
+//! unexplained) / (agree + violate + occluded + outside)`, 0 under `min_cells`.
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -15,6 +17,9 @@ use crate::params::VerifyParams;
 
 /// Side of the comparison grid around each cell's pixel.
 const GRID: i64 = 5;
+/// Observed points this close above a shape's bottom are the floor it stands on, not
+/// unexplained surface (metres).
+const FLOOR_CLEARANCE: f64 = 0.05;
 
 /// A depth frame prepared for verification: the raw depth and, when known, which pixels are
 /// floor or wall.
@@ -121,7 +126,8 @@ pub fn verify_pose(
             ) + t
         })
         .collect();
-    let vis = visible_points(&pc, cam, cell_px(spacing, t.z, cam, params), 1.0);
+    let cell = cell_px(spacing, t.z, cam, params);
+    let vis = visible_points(&pc, cam, cell, 1.0);
     let outside = vis.iter().filter(|v| !v.3).count();
     let (w, h) = (cam.width as i64, cam.height as i64);
     let half = params.lateral * cam.k.fx / t.z.max(1e-3);
@@ -175,10 +181,18 @@ pub fn verify_pose(
     }
     let occluded = n_in - agree - violate - missing;
     let n = agree + violate + occluded + outside;
+    let unexplained = if params.unexplained_weight > 0.0 {
+        unexplained_cells(ev, r, t, &pc, &vis, cell, base, k, params.lateral)
+    } else {
+        0
+    };
     let score = if n - outside < params.min_cells {
         0.0
     } else {
-        (agree as f64 - params.violation_weight * violate as f64) / n as f64
+        (agree as f64
+            - params.violation_weight * violate as f64
+            - params.unexplained_weight * unexplained as f64)
+            / n as f64
     };
     Verification {
         score,
@@ -188,6 +202,93 @@ pub fn verify_pose(
         missing,
         outside,
     }
+}
+
+/// Cells of observed surface the shape does not explain: a pixel per shape cell (the cells'
+/// own grid, over the shape's image footprint) whose observed point lies inside the shape's
+/// box grown by `margin`, off the planes, and in front of the shape's front surface there
+/// (beyond the depth tolerance) or where the shape shows no surface. Seen-through cells are
+/// the violations; these are the other direction: something solid where the shape is empty.
+#[allow(clippy::too_many_arguments)]
+fn unexplained_cells(
+    ev: &Evidence<'_>,
+    r: &Matrix3<f64>,
+    t: &Vector3<f64>,
+    pc: &[Vector3<f64>],
+    vis: &[(usize, i64, i64, bool)],
+    cell: i64,
+    base: f64,
+    k: f64,
+    margin: f64,
+) -> usize {
+    let cam = &ev.frame.camera;
+    let (w, h) = (cam.width as i64, cam.height as i64);
+    // The shape's front depth per cell, on visible_points' grid (cells counted from one image
+    // size left of and above the image).
+    let key = |u: i64, v: i64| ((u + w) / cell, (v + h) / cell);
+    let cells: Vec<((i64, i64), f64)> = vis
+        .iter()
+        .filter(|v| v.3)
+        .map(|&(i, u, v, _)| (key(u, v), pc[i].z))
+        .collect();
+    let Some(c0) = cells.iter().map(|c| c.0 .0).min() else {
+        return 0;
+    };
+    let c1 = cells.iter().map(|c| c.0 .0).max().expect("non-empty");
+    let r0 = cells.iter().map(|c| c.0 .1).min().expect("non-empty");
+    let r1 = cells.iter().map(|c| c.0 .1).max().expect("non-empty");
+    let cols = (c1 - c0 + 1) as usize;
+    let rows = (r1 - r0 + 1) as usize;
+    let mut front = vec![f64::INFINITY; cols * rows];
+    for &((c, rr), z) in &cells {
+        let slot = &mut front[(rr - r0) as usize * cols + (c - c0) as usize];
+        *slot = slot.min(z);
+    }
+    // The shape's box in its own (scaled, z-up) frame, grown by the margin (an observed face on
+    // the box is the object's own, and poses are a few centimetres off) but raised above the
+    // floor it stands on.
+    let rt = r.transpose();
+    let (mut lo, mut hi) = (
+        Vector3::repeat(f64::INFINITY),
+        Vector3::repeat(f64::NEG_INFINITY),
+    );
+    for p in pc {
+        let q = rt * (p - t);
+        lo = lo.inf(&q);
+        hi = hi.sup(&q);
+    }
+    lo -= Vector3::new(margin, margin, -margin.max(FLOOR_CLEARANCE));
+    hi.add_scalar_mut(margin);
+    let mut count = 0;
+    for row in 0..rows as i64 {
+        for col in 0..cols as i64 {
+            // The cell's centre pixel.
+            let u = (c0 + col) * cell - w + cell / 2;
+            let v = (r0 + row) * cell - h + cell / 2;
+            if u < 0 || u >= w || v < 0 || v >= h {
+                continue;
+            }
+            let pix = (v * w + u) as usize;
+            let zo = f64::from(ev.frame.depth[pix]);
+            if zo <= 0.0 || ev.planes.is_some_and(|p| p[pix]) {
+                continue;
+            }
+            let x = Vector3::new(
+                (u as f64 - cam.k.cx) * zo / cam.k.fx,
+                (v as f64 - cam.k.cy) * zo / cam.k.fy,
+                zo,
+            );
+            let q = rt * (x - t);
+            if (0..3).any(|a| q[a] <= lo[a] || q[a] >= hi[a]) {
+                continue;
+            }
+            let zf = front[row as usize * cols + col as usize];
+            if !zf.is_finite() || zo < zf - base.max(k * zf * zf) {
+                count += 1;
+            }
+        }
+    }
+    count
 }
 
 #[cfg(test)]
@@ -309,5 +410,49 @@ pub(crate) mod tests {
             None,
         );
         assert_eq!(vb, Verification::default());
+    }
+
+    /// A table-like shape (a top on four legs) hypothesised on a solid box of the same size:
+    /// the box's front face fills the table's empty space under its top, so the unexplained
+    /// cells mark it down; the box's own shape explains every observed cell and keeps its score.
+    #[test]
+    fn observed_surface_where_the_shape_is_empty_is_unexplained() {
+        let size = [1.0, 1.6, 0.6];
+        let (depth, cam, r, t, _) = box_scene(size, 0.3);
+        let ev = Evidence {
+            frame: Frame::new(&depth, cam).unwrap(),
+            planes: None,
+        };
+        let solid = box_library(size, 24);
+        let mut table: Vec<[f32; 3]> = box_library([1.0, 1.6, 0.05], 24)
+            .points_of(0)
+            .iter()
+            .map(|p| [p[0], p[1], p[2] + 0.55])
+            .collect();
+        let leg = box_library([0.05, 0.05, 0.55], 8);
+        for (x, y) in [
+            (-0.475, -0.775),
+            (0.475, -0.775),
+            (-0.475, 0.775),
+            (0.475, 0.775),
+        ] {
+            table.extend(leg.points_of(0).iter().map(|p| [p[0] + x, p[1] + y, p[2]]));
+        }
+        let score = |points: &[[f32; 3]], spacing: f64, w: f64| {
+            let p = VerifyParams {
+                unexplained_weight: w,
+                ..VerifyParams::default()
+            };
+            verify_pose(&ev, &r, &t, points, [1.0; 3], spacing, &p, None).score
+        };
+        // The table's samples are about as dense as the box's (the same grid on its top).
+        let spacing = solid.spacing[0];
+        let box0 = score(solid.points_of(0), spacing, 0.0);
+        let box1 = score(solid.points_of(0), spacing, 1.0);
+        let table0 = score(&table, spacing, 0.0);
+        let table1 = score(&table, spacing, 1.0);
+        assert!(box0 > 0.75 && (box0 - box1).abs() < 0.02, "{box0} {box1}");
+        assert!(table1 < table0 - 0.2, "{table0} -> {table1}");
+        assert!(box1 > table1 + 0.3, "{box1} vs {table1}");
     }
 }
