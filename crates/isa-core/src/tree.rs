@@ -325,9 +325,11 @@ fn finish_node(ctx: &TrainContext<'_>, plan: Plan, bins: &[u8]) -> (usize, Outco
 
 /// Scored parts of a level planned and binned at once (the bins cost `n_candidates` bytes a
 /// scored part, the plans a few kilobytes a node); a larger level goes in chunks of whole nodes.
-const LEVEL_BIN_ROWS: usize = 1 << 20;
-/// Nodes planned at once (each plan holds its candidates and thresholds).
-const LEVEL_NODES: usize = 8192;
+/// 2^19 rows: 52 MB of bins at 100 candidates (2^20 held 105 MB).
+const LEVEL_BIN_ROWS: usize = 1 << 19;
+/// Nodes planned at once (each plan holds its candidates and thresholds: about 25 KB a node at
+/// 100 candidates and 16 thresholds, so 1024 nodes hold about 25 MB; 8192 held about 200 MB).
+const LEVEL_NODES: usize = 1024;
 
 /// The level's nodes in consecutive chunks of at most `level_rows` parts to score and
 /// [`LEVEL_NODES`] nodes (a node scores at most `max_score_samples`; one with more than
@@ -381,11 +383,7 @@ pub(crate) fn grow_tree(
         leaf_offsets: vec![0],
         votes: Vec::new(),
     };
-    let n_all = ctx.parts.len();
     let nc = ctx.params.n_candidates;
-    // Per-part scratch of the current level: plan slot and row in the level's bin matrix.
-    let mut slot_of = vec![u32::MAX; n_all];
-    let mut row_of = vec![0u32; n_all];
     let mut frontier: Vec<(usize, Vec<u32>)> = vec![(0, bag)];
     let mut depth = 0;
     let trace = std::env::var_os("ISA_TRACE").is_some();
@@ -413,47 +411,42 @@ pub(crate) fn grow_tree(
             if plans.is_empty() {
                 continue;
             }
-            // (2) the chunk's scored parts in part order, and their bins.
-            // (Nodes' subsets are disjoint, so sorting their union gives each part once.)
-            let mut scan: Vec<u32> =
+            // (2) the chunk's scored parts in part order, each with its plan's slot, and their
+            // bins (row `r` of the bins is part `scan[r].0`). Nodes' subsets are disjoint, so
+            // sorting their union gives each part once; no per-part array of the whole set.
+            let mut scan: Vec<(u32, u32)> =
                 Vec::with_capacity(plans.iter().map(|pl| pl.subset.len()).sum());
             for (s, pl) in plans.iter().enumerate() {
-                for &p in &pl.subset {
-                    slot_of[p as usize] = s as u32;
-                }
-                scan.extend_from_slice(&pl.subset);
+                scan.extend(pl.subset.iter().map(|&p| (p, s as u32)));
             }
             scan.par_sort_unstable();
-            for (row, &p) in scan.iter().enumerate() {
-                row_of[p as usize] = row as u32;
-            }
             let c2 = std::time::Instant::now();
             let mut bins = vec![0u8; scan.len() * nc];
             {
-                let (store, parts, slot_of, plans) = (ctx.store, ctx.parts, &slot_of, &plans);
+                let (store, parts, plans) = (ctx.store, ctx.parts, &plans);
                 const ROWS: usize = 512;
                 bins.par_chunks_mut(ROWS * nc)
                     .zip(scan.par_chunks(ROWS))
                     .for_each(|(out, ps)| {
-                        for (row, &p) in out.chunks_exact_mut(nc).zip(ps) {
-                            let pl = &plans[slot_of[p as usize] as usize];
+                        for (row, &(p, slot)) in out.chunks_exact_mut(nc).zip(ps) {
+                            let pl = &plans[slot as usize];
                             let g = PartGeom::new(store, &parts[p as usize]);
                             bins_row(&pl.thr, &pl.soa, &pl.cands, &g, row);
                         }
                     });
             }
-            for &p in &scan {
-                slot_of[p as usize] = u32::MAX;
-            }
             let c3 = std::time::Instant::now();
-            // (3) score every node on its rows.
-            let (bins, row_of) = (&bins, &row_of);
+            // (3) score every node on its rows (found by binary search in `scan`: the node's
+            // subset is ascending, so each search starts at the previous row).
+            let (bins, scan) = (&bins, &scan);
             let scored: Vec<(usize, Outcome)> = plans
                 .into_par_iter()
                 .map(|pl| {
                     let mut local = vec![0u8; pl.subset.len() * nc];
+                    let mut r = 0;
                     for (dst, &p) in local.chunks_exact_mut(nc).zip(&pl.subset) {
-                        let r = row_of[p as usize] as usize;
+                        r += scan[r..].partition_point(|&(q, _)| q < p);
+                        debug_assert_eq!(scan[r].0, p);
                         dst.copy_from_slice(&bins[r * nc..(r + 1) * nc]);
                     }
                     finish_node(ctx, pl, &local)
