@@ -20,6 +20,7 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
 - ``nogravity``: ``refine`` without the scene's gravity (floor normal, else the votes' tilt);
 - ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one
   (``fw0``: none);
+- ``noproposals``: ``refine`` without the footprint proposals (the forests' hypotheses only);
 - ``unexplainedW``: ``refine`` with ``verify.unexplained_weight`` ``W`` (observed surface inside
   a hypothesis' box that its shape does not explain costs ``W`` a cell).
 
@@ -44,7 +45,7 @@ from isa.exceptions import DataError
 
 __all__ = ["VARIANTS", "variant_params", "run_variant", "found_within", "main"]
 
-VARIANTS = ("baseline", "forest", "verify", "refine", "turns2", "turns4", "foreground", "nogravity")
+VARIANTS = ("baseline", "forest", "verify", "refine", "turns2", "turns4", "foreground", "nogravity", "noproposals")
 
 
 def variant_params(name: str):
@@ -63,6 +64,13 @@ def variant_params(name: str):
         return DetectParams()
     if name.startswith("fw"):
         return DetectParams(forest_weight=float(name[2:]))
+    if name == "noproposals":
+        return DetectParams(proposals=None)
+    if name.startswith("prop:"):  # prop:key=value,key=value (proposal parameters, for tuning)
+        from isa.detection.proposals import ProposalParams
+
+        kv = dict(item.split("=") for item in name[5:].split(","))
+        return DetectParams(proposals=ProposalParams(**{k: type(getattr(ProposalParams(), k))(v) for k, v in kv.items()}))
     if name.startswith("unexplained"):
         from isa.detection.verify import VerifyParams
 

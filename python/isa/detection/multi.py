@@ -8,6 +8,8 @@
 4. **Verification** (:mod:`isa.detection.verify`) on the *raw* depth against each of the category's
    training shapes; the best shape gives the score (comparable across categories and frames)
    and the size.
+   Beside the forests' hypotheses, footprints on the floor propose each category's box
+   (:mod:`isa.detection.proposals`), scored by the same verification.
 5. **Refinement** (:mod:`isa.detection.refine`) of the best hypotheses: upright ICP with the best shape,
    then verified again; kept when the score does not drop.
 6. **NMS across categories**: one ranked list; a box overlapping a better one (3D IoU over
@@ -33,6 +35,7 @@ from isa import _core, atomic
 from isa.camera import Intrinsics
 from isa.detection.gravity import GravityEstimate
 from isa.detection.planes import PlaneParams
+from isa.detection.proposals import ProposalParams
 from isa.detection.refine import RefineParams
 from isa.detection.shapes import ShapeLibrary
 from isa.detection.verify import VerifyParams
@@ -92,7 +95,8 @@ class DetectParams:
     """``stride``, ``max_hypotheses`` go to each forest's voting; ``max_tilt_deg`` rejects
     hypotheses tilted further from up; ``floor_gap`` rejects those whose bottom is further from
     the found floor (and the rest are set on it); ``planes`` the plane finding; ``verify`` /
-    ``refine`` None switch the steps off; ``size_top`` hypotheses per category get their size
+    ``refine`` None switch the steps off; ``proposals`` the footprint hypotheses beside the
+    forests' (None: off; :mod:`isa.detection.proposals`); ``size_top`` hypotheses per category get their size
     fitted (per-axis scale of their ``size_shapes`` best shapes, factors ``size_steps``; 0:
     training sizes only); the shapes are screened and sized on their first ``quick_points``
     samples (None: all), the final score uses all; ``forest_weight`` adds that times the log of
@@ -111,6 +115,7 @@ class DetectParams:
     planes: PlaneParams = field(default_factory=PlaneParams)
     verify: VerifyParams | None = field(default_factory=VerifyParams)
     refine: RefineParams | None = field(default_factory=RefineParams)
+    proposals: ProposalParams | None = field(default_factory=ProposalParams)
     refine_top: int = _D["refine_top"]
     turns: int = _D["turns"]
     size_top: int = _D["size_top"]

@@ -190,6 +190,52 @@ impl RefineParams {
     }
 }
 
+/// Hypotheses from footprints on the floor ([`crate::scene::proposals`]; see
+/// `isa.detection.proposals.ProposalParams`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ProposalParams {
+    /// Pixel stride of the points binned. Default 2.
+    pub stride: usize,
+    /// Grid cell side over the floor (metres). Default 0.05.
+    pub cell: f64,
+    /// Points less high above the floor are left out (metres). Default 0.05.
+    pub clearance: f64,
+    /// ... and higher ones (metres). Default 2.0.
+    pub max_height: f64,
+    /// A cell with fewer points is empty. Default 2.
+    pub min_cell_points: usize,
+    /// A footprint with fewer points proposes nothing. Default 150.
+    pub min_points: usize,
+    /// Footprints used at most, largest first. Default 12.
+    pub max_footprints: usize,
+    /// A forest hypothesis this close to a footprint (metres) lends it its score. Default 0.2.
+    pub vote_margin: f64,
+}
+
+impl Default for ProposalParams {
+    fn default() -> Self {
+        Self {
+            stride: 2,
+            cell: 0.05,
+            clearance: 0.05,
+            max_height: 2.0,
+            min_cell_points: 2,
+            min_points: 150,
+            max_footprints: 12,
+            vote_margin: 0.2,
+        }
+    }
+}
+
+impl ProposalParams {
+    pub fn validate(&self) -> Result<()> {
+        checked!(self, "proposals."; positive(cell), non_negative(clearance),
+            positive(max_height), non_negative(vote_margin));
+        at_least_one(&named!(self, "proposals."; stride, max_footprints))
+    }
+}
+
 /// The whole detection pipeline (see `isa.detection.multi.DetectParams`).
 // A flat list of typed fields (its JSON form, which the CLI and Python overlay, is this list);
 // `duplicates` pairs runs of it with itself and with other structs by shape alone.
@@ -212,6 +258,8 @@ pub struct DetectParams {
     pub verify: Option<VerifyParams>,
     /// Refinement; None: off.
     pub refine: Option<RefineParams>,
+    /// Hypotheses from footprints on the floor beside the forests' (needs a floor); None: off.
+    pub proposals: Option<ProposalParams>,
     /// Hypotheses refined per category. Default 5.
     pub refine_top: usize,
     /// > 1: each hypothesis also verified turned by multiples of 360 / turns degrees. Default 1.
@@ -249,6 +297,7 @@ impl Default for DetectParams {
             planes: PlaneParams::default(),
             verify: Some(VerifyParams::default()),
             refine: Some(RefineParams::default()),
+            proposals: Some(ProposalParams::default()),
             refine_top: 5,
             turns: 1,
             size_top: 8,
@@ -310,6 +359,9 @@ impl DetectParams {
             v.validate()?;
         }
         if let Some(r) = &self.refine {
+            r.validate()?;
+        }
+        if let Some(r) = &self.proposals {
             r.validate()?;
         }
         Ok(())

@@ -19,7 +19,9 @@ mod overlay;
 mod predict;
 
 pub use depth::{DepthParams, DEPTH_SCALE_HELP};
-pub use detect::{DetectParams, PlaneParams, RefineParams, VerifyParams, DEPTH_TOLERANCE};
+pub use detect::{
+    DetectParams, PlaneParams, ProposalParams, RefineParams, VerifyParams, DEPTH_TOLERANCE,
+};
 pub use forest::{ForestParams, Quality};
 pub use overlay::overlay_json;
 pub use predict::{PredictParams, VoteParams};

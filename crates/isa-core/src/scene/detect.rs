@@ -13,13 +13,14 @@ use serde_json::Value;
 use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource};
 use super::nms::{nms_across, UprightBox};
 use super::planes::{find_planes, Planes};
+use super::proposals::{footprints, Footprint};
 use super::refine::{refine_pose, upright_points};
 use super::shapes::{ShapeLibrary, SizeRange};
 use super::verify::{verify_pose, Evidence, Verification};
 use super::{rot_z, rows, yaw_of, Camera, Frame};
 use crate::error::{IsaError, Result};
 use crate::forest::Forest;
-use crate::params::{DetectParams, Valid, VerifyParams};
+use crate::params::{DetectParams, ProposalParams, Valid, VerifyParams};
 use crate::vote::{depth_m_to_mm, predict_parts, DepthImage, Hypothesis, ImageParts};
 
 /// Margin (a fraction) by which a fitted size may leave the category's real-world range.
@@ -235,6 +236,51 @@ fn candidates(
     out
 }
 
+/// The model's box on every footprint in its four yaws (standing on the floor at `floor`). Each
+/// carries the score and support of the model's best hypothesis over the footprint (grown by
+/// `vote_margin`), else half the weakest hypothesis' score: the forest's word on the category.
+fn proposed(
+    model: &SceneModel<'_>,
+    hyps: &[Hypothesis],
+    fps: &[Footprint],
+    floor: f64,
+    sc: &Scene<'_>,
+    pp: &ProposalParams,
+) -> Vec<Cand> {
+    let weakest = hyps.iter().map(|h| h.score).fold(f64::INFINITY, f64::min);
+    let fallback = if weakest.is_finite() { weakest / 2.0 } else { 1e-6 };
+    let mut out = Vec::new();
+    for fp in fps {
+        let over = hyps
+            .iter()
+            .filter(|h| {
+                let q = sc.rg * Vector3::from(h.translation);
+                fp.contains([q.x, q.y], pp.vote_margin)
+            })
+            .max_by(|a, b| a.score.total_cmp(&b.score));
+        let (forest_score, support) = over.map_or((fallback, 0), |h| (h.score, h.support));
+        for (yaw, centre) in fp.boxes(model.size, floor) {
+            let r_up = rot_z(yaw);
+            let origin = centre + r_up * Vector3::from(model.ssc_offset);
+            out.push(Cand {
+                r: sc.rg_inv * r_up,
+                t: sc.rg_inv * origin,
+                forest_score,
+                support,
+                rank: hyps.len() + out.len(),
+                tilt_deg: 0.0,
+                score: forest_score,
+                shape: None,
+                scale: [1.0; 3],
+                turn: 0,
+                shape_order: vec![],
+                refined: false,
+            });
+        }
+    }
+    out
+}
+
 /// Every shape at its training size, at the candidate's pose and its turns; the best wins.
 fn score_shapes(
     c: &mut Cand,
@@ -398,11 +444,10 @@ pub fn detect(
     };
     let floor = planes.as_ref().and_then(|pl| pl.floor_height());
     lap("planes", &mut secs);
-    let clean_mm = depth_m_to_mm(
-        &planes
-            .as_ref()
-            .map_or_else(|| depth.to_vec(), |pl| pl.clean(depth)),
-    );
+    let clean = planes
+        .as_ref()
+        .map_or_else(|| depth.to_vec(), |pl| pl.clean(depth));
+    let clean_mm = depth_m_to_mm(&clean);
     let img = DepthImage::new(&clean_mm, camera.width, camera.height)?;
     // One part sampling for every forest (each keeps its own depth limits).
     let parts = ImageParts::new(&img, p.stride)?;
@@ -432,6 +477,16 @@ pub fn detect(
         rg_inv,
         floor,
     };
+    let fps = match (&p.proposals, floor, &planes) {
+        (Some(pp), Some(f), Some(_)) => {
+            let pts = upright_points(&Frame::new(&clean, camera)?, &rg, pp.stride, Some(f), 0.0);
+            let mut fps = footprints(&pts, f, pp);
+            fps.truncate(pp.max_footprints);
+            fps
+        }
+        _ => Vec::new(),
+    };
+    lap("proposals", &mut secs);
     let obs_up = p
         .refine
         .as_ref()
@@ -442,6 +497,9 @@ pub fn detect(
         .zip(&per_model)
         .map(|(m, hyps)| {
             let mut cands = candidates(m, hyps, &sc, p);
+            if let (Some(pp), Some(f)) = (&p.proposals, floor) {
+                cands.extend(proposed(m, hyps, &fps, f, &sc, pp));
+            }
             if let (Some(lib), Some(vp)) = (m.shapes, &p.verify) {
                 cands
                     .par_iter_mut()

@@ -7,6 +7,7 @@
 //!   set to missing depth for the voting;
 //! * votes: each category forest ([`crate::vote::predict`]) on the cleaned depth, hypotheses
 //!   snapped upright and set on the floor ([`detect`]);
+//! * [`proposals`]: hypotheses from footprints on the floor beside the forests' (optional);
 //! * [`verify`]: z-buffered, point-sampled training shapes ([`shapes`]) against the raw depth;
 //!   the best shape and a per-axis scale give the score and the size;
 //! * [`refine`]: upright ICP (yaw and translation) of the best hypotheses;
@@ -19,11 +20,12 @@ pub mod detect;
 pub mod gravity;
 pub mod nms;
 pub mod planes;
+pub mod proposals;
 pub mod refine;
 pub mod shapes;
 pub mod verify;
 
-pub use crate::params::{DetectParams, PlaneParams, RefineParams, VerifyParams};
+pub use crate::params::{DetectParams, PlaneParams, ProposalParams, RefineParams, VerifyParams};
 pub use detect::{detect, DetectOutput, Detection, SceneModel};
 pub use shapes::{ShapeLibrary, SizeRange};
 

@@ -1,0 +1,36 @@
+"""Hypotheses from the frame's geometry (``isa_core::scene::proposals``): once the floor and walls
+are set aside, the points standing on the floor are binned in a grid over it; connected occupied
+cells form a footprint, and each footprint proposes every category's box in the four yaws along
+its minimum-area rectangle, reaching away from the camera where the box is longer than what is
+seen. A proposal carries the score of its category's best forest hypothesis over the footprint,
+and verification decides among them and the forests' own hypotheses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from isa import _core
+from isa.detection.stage_params import StageParams
+
+__all__ = ["ProposalParams"]
+
+_D = _core.DETECT_DEFAULTS["proposals"]
+
+
+# One typed field per parameter of the core's section (see stage_params).
+@dataclass(frozen=True)
+class ProposalParams(StageParams):
+    """``stride`` pixel stride of the points binned; ``cell`` grid side (metres); points between
+    ``clearance`` and ``max_height`` above the floor count; a cell with fewer than
+    ``min_cell_points`` is empty; a footprint needs ``min_points``; ``max_footprints`` largest
+    are used; a forest hypothesis within ``vote_margin`` (metres) of a footprint lends it its
+    score. Defaults: the core's."""
+
+    stride: int = _D["stride"]
+    cell: float = _D["cell"]
+    clearance: float = _D["clearance"]
+    max_height: float = _D["max_height"]
+    min_cell_points: int = _D["min_cell_points"]
+    min_points: int = _D["min_points"]
+    max_footprints: int = _D["max_footprints"]
+    vote_margin: float = _D["vote_margin"]
