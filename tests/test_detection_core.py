@@ -43,11 +43,12 @@ def test_planes_match_the_numpy_path(chairs):
 
 
 def test_parameters_are_the_cores():
-    from isa.detection import DetectParams, RefineParams, VerifyParams
+    from isa.detection import DetectParams, ProposalParams, RefineParams, VerifyParams
 
     d = _core.DETECT_DEFAULTS
     assert json.loads(json.dumps(DetectParams().to_dict())) == d  # every default, nested ones included
     assert VerifyParams().lateral == d["verify"]["lateral"] and RefineParams().to_dict() == d["refine"]
+    assert ProposalParams().to_dict() == d["proposals"]
     assert PlaneParams().to_dict()["tolerance"] == tuple(d["planes"]["tolerance"])
     assert tuple(d["verify"]["tolerance"]) == DEPTH_TOLERANCE  # the sensor's tolerance, as the renderer's noise
     with pytest.raises(ValueError, match="nms_iou"):
@@ -79,7 +80,7 @@ def test_core_detect_matches_the_numpy_path_on_a_rendered_room(monkeypatch):
     and the numpy path, given the same planes, give the same ranked detections."""
     import detect_reference.multi as ref_multi
     import detect_reference.planes as ref_planes
-    from isa.detection import detect, train_detector
+    from isa.detection import DetectParams, detect, train_detector
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel
     from isa.forest import ForestParams
@@ -92,7 +93,8 @@ def test_core_detect_matches_the_numpy_path_on_a_rendered_room(monkeypatch):
     depth, _, Rg = _room(prepared.objects[1].mesh, 0.3, 0.5, 0.6)
     box = model_box(forest)
     models = [CategoryModel("chair", forest, box, lib), CategoryModel("toilet", forest, box, lib)]
-    new = detect(depth, KINECT_V1, models, gravity=Rg)
+    # The numpy path has no footprint proposals: compare the forests' hypotheses alone.
+    new = detect(depth, KINECT_V1, models, gravity=Rg, params=DetectParams(proposals=None))
     core_planes = remove_planes(depth, KINECT_V1, Rg)
     monkeypatch.setattr(ref_planes, "remove_planes", lambda *a, **k: core_planes)
     old = ref_multi.detect(depth, KINECT_V1, models, gravity=Rg)
@@ -104,3 +106,31 @@ def test_core_detect_matches_the_numpy_path_on_a_rendered_room(monkeypatch):
         np.testing.assert_allclose(n.t, o.t, atol=5e-3)
         assert math.degrees(math.acos(min(1.0, (np.trace(n.R.T @ o.R) - 1) / 2))) < 0.5
         np.testing.assert_allclose(n.size, o.size, atol=5e-3)
+
+
+@pytest.mark.slow
+def test_footprint_proposals_find_an_object_the_forest_gives_no_hypothesis_for():
+    """With the forest's hypotheses withheld (an empty list), the footprint of a chair standing
+    in a rendered room still proposes its box, and verification with the chairs' shapes puts it
+    within 10 cm of the chair's true box centre; without proposals nothing is detected."""
+    from isa.detection import DetectParams, train_detector
+    from isa.detection.category_boxes import model_box
+    from isa.forest import ForestParams
+    from isa.render.dataset import procedural_objects
+
+    objs = procedural_objects("chair", 3, seed=7)
+    params = ForestParams(n_trees=2, max_depth=8, n_candidates=20, quality="Q1")
+    forest, prepared = train_detector("chair", objs, views=8, stride=8, use_ground_truth=True, forest_params=params)
+    lib = shape_library("chair", prepared.objects)
+    mesh = prepared.objects[1].mesh
+    depth, (R, t), Rg = _room(mesh, 0.3, 0.5, 0.6)
+    box = model_box(forest)
+    spec = {"category": "chair", "forest": forest, "size": box.size, "ssc_offset": box.ssc_offset,
+            "shapes": lib.core, "size_range": lib.size_range, "hypotheses": []}
+    truth = Rg @ (R @ mesh.bounds.mean(axis=0) + t)  # the chair's box centre, upright frame
+    frame = np.ascontiguousarray(depth, np.float32)
+    none = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams(proposals=None).to_dict())
+    assert none["detections"] == []
+    best = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams().to_dict())["detections"][0]
+    centre = Rg @ (np.asarray(best["R"]) @ np.asarray(best["box_centre"]) + np.asarray(best["t"]))
+    assert np.linalg.norm(centre[:2] - truth[:2]) < 0.10, (centre, truth)

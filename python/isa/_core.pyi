@@ -368,7 +368,7 @@ class ShardTrainer:
 
 DETECT_DEFAULTS: dict[str, Any]
 """The core's detection parameters (``isa_core::DetectParams``: nested ``planes``, ``verify``,
-``refine``), which ``isa.detection``'s parameter classes mirror."""
+``refine``, ``proposals``), which ``isa.detection``'s parameter classes mirror."""
 SHAPES_FORMAT_VERSION: int
 
 @final

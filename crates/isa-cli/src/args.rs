@@ -363,7 +363,7 @@ pub struct DetectArgs {
     #[command(flatten)]
     pub flags: DetectFlags,
     /// JSON file of detection parameters (fields of DetectParams: nested planes, verify,
-    /// refine; null switches verify or refine off); flags override it.
+    /// refine, proposals; null switches verify, refine or proposals off); flags override it.
     #[arg(long, value_name = "JSON")]
     pub params: Option<PathBuf>,
     #[command(flatten)]

@@ -24,7 +24,8 @@ class ProposalParams(StageParams):
     ``clearance`` and ``max_height`` above the floor count; a cell with fewer than
     ``min_cell_points`` is empty; a footprint needs ``min_points``; ``max_footprints`` largest
     are used; a forest hypothesis within ``vote_margin`` (metres) of a footprint lends it its
-    score. Defaults: the core's."""
+    score, and a footprint none lends one to carries ``unvoted`` times the weakest hypothesis'
+    score (0: it proposes nothing for that category). Defaults: the core's."""
 
     stride: int = _D["stride"]
     cell: float = _D["cell"]
@@ -34,3 +35,4 @@ class ProposalParams(StageParams):
     min_points: int = _D["min_points"]
     max_footprints: int = _D["max_footprints"]
     vote_margin: float = _D["vote_margin"]
+    unvoted: float = _D["unvoted"]

@@ -211,6 +211,9 @@ pub struct ProposalParams {
     pub max_footprints: usize,
     /// A forest hypothesis this close to a footprint (metres) lends it its score. Default 0.2.
     pub vote_margin: f64,
+    /// A footprint no hypothesis of the category lends a score to carries this fraction of the
+    /// weakest hypothesis' score; 0: it proposes nothing for the category. Default 0.5.
+    pub unvoted: f64,
 }
 
 impl Default for ProposalParams {
@@ -224,6 +227,7 @@ impl Default for ProposalParams {
             min_points: 150,
             max_footprints: 12,
             vote_margin: 0.2,
+            unvoted: 0.5,
         }
     }
 }
@@ -231,7 +235,7 @@ impl Default for ProposalParams {
 impl ProposalParams {
     pub fn validate(&self) -> Result<()> {
         checked!(self, "proposals."; positive(cell), non_negative(clearance),
-            positive(max_height), non_negative(vote_margin));
+            positive(max_height), non_negative(vote_margin), non_negative(unvoted));
         at_least_one(&named!(self, "proposals."; stride, max_footprints))
     }
 }

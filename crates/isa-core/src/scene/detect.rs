@@ -238,7 +238,8 @@ fn candidates(
 
 /// The model's box on every footprint in its four yaws (standing on the floor at `floor`). Each
 /// carries the score and support of the model's best hypothesis over the footprint (grown by
-/// `vote_margin`), else half the weakest hypothesis' score: the forest's word on the category.
+/// `vote_margin`), else `unvoted` times the weakest hypothesis' score (0: none proposed): the
+/// forest's word on the category.
 fn proposed(
     model: &SceneModel<'_>,
     hyps: &[Hypothesis],
@@ -248,7 +249,7 @@ fn proposed(
     pp: &ProposalParams,
 ) -> Vec<Cand> {
     let weakest = hyps.iter().map(|h| h.score).fold(f64::INFINITY, f64::min);
-    let fallback = if weakest.is_finite() { weakest / 2.0 } else { 1e-6 };
+    let fallback = if weakest.is_finite() { weakest * pp.unvoted } else { 1e-6 * pp.unvoted };
     let mut out = Vec::new();
     for fp in fps {
         let over = hyps
@@ -258,6 +259,9 @@ fn proposed(
                 fp.contains([q.x, q.y], pp.vote_margin)
             })
             .max_by(|a, b| a.score.total_cmp(&b.score));
+        if over.is_none() && pp.unvoted == 0.0 {
+            continue;
+        }
         let (forest_score, support) = over.map_or((fallback, 0), |h| (h.score, h.support));
         for (yaw, centre) in fp.boxes(model.size, floor) {
             let r_up = rot_z(yaw);
