@@ -123,6 +123,32 @@ struct Cand {
     refined: bool,
 }
 
+impl Cand {
+    /// A hypothesis not verified yet at `(r, t)`, with the forest's score and support (its
+    /// score until verified), its rank among the category's and its tilt.
+    fn new(
+        (r, t): Pose,
+        (forest_score, support): (f64, usize),
+        rank: usize,
+        tilt_deg: f64,
+    ) -> Self {
+        Cand {
+            r,
+            t,
+            forest_score,
+            support,
+            rank,
+            tilt_deg,
+            score: forest_score,
+            shape: None,
+            scale: [1.0; 3],
+            turn: 0,
+            shape_order: vec![],
+            refined: false,
+        }
+    }
+}
+
 /// The geometry every hypothesis of a frame is checked against.
 struct Scene<'a> {
     ev: Evidence<'a>,
@@ -218,20 +244,7 @@ fn candidates(
             }
             t -= gap * up;
         }
-        out.push(Cand {
-            r: r_up,
-            t,
-            forest_score: h.score,
-            support: h.support,
-            rank,
-            tilt_deg: tilt,
-            score: h.score,
-            shape: None,
-            scale: [1.0; 3],
-            turn: 0,
-            shape_order: vec![],
-            refined: false,
-        });
+        out.push(Cand::new((r_up, t), (h.score, h.support), rank, tilt));
     }
     out
 }
@@ -249,7 +262,11 @@ fn proposed(
     pp: &ProposalParams,
 ) -> Vec<Cand> {
     let weakest = hyps.iter().map(|h| h.score).fold(f64::INFINITY, f64::min);
-    let fallback = if weakest.is_finite() { weakest * pp.unvoted } else { 1e-6 * pp.unvoted };
+    let fallback = if weakest.is_finite() {
+        weakest * pp.unvoted
+    } else {
+        1e-6 * pp.unvoted
+    };
     let mut out = Vec::new();
     for fp in fps {
         let over = hyps
@@ -262,24 +279,13 @@ fn proposed(
         if over.is_none() && pp.unvoted == 0.0 {
             continue;
         }
-        let (forest_score, support) = over.map_or((fallback, 0), |h| (h.score, h.support));
+        let forest = over.map_or((fallback, 0), |h| (h.score, h.support));
         for (yaw, centre) in fp.boxes(model.size, floor) {
             let r_up = rot_z(yaw);
             let origin = centre + r_up * Vector3::from(model.ssc_offset);
-            out.push(Cand {
-                r: sc.rg_inv * r_up,
-                t: sc.rg_inv * origin,
-                forest_score,
-                support,
-                rank: hyps.len() + out.len(),
-                tilt_deg: 0.0,
-                score: forest_score,
-                shape: None,
-                scale: [1.0; 3],
-                turn: 0,
-                shape_order: vec![],
-                refined: false,
-            });
+            let rank = hyps.len() + out.len();
+            let pose = (sc.rg_inv * r_up, sc.rg_inv * origin);
+            out.push(Cand::new(pose, forest, rank, 0.0));
         }
     }
     out

@@ -120,7 +120,16 @@ pub fn footprints(points: &[Vector3<f64>], floor: f64, p: &ProposalParams) -> Ve
         while let Some(c) = queue.pop_front() {
             sizes[id] += count[c] as usize;
             let (i, j) = ((c % dims[0]) as i64, (c / dims[0]) as i64);
-            for (di, dj) in [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+            for (di, dj) in [
+                (-1, -1),
+                (0, -1),
+                (1, -1),
+                (-1, 0),
+                (1, 0),
+                (-1, 1),
+                (0, 1),
+                (1, 1),
+            ] {
                 let (a, b) = (i + di, j + dj);
                 if a < 0 || b < 0 || a >= dims[0] as i64 || b >= dims[1] as i64 {
                     continue;
@@ -148,7 +157,7 @@ pub fn footprints(points: &[Vector3<f64>], floor: f64, p: &ProposalParams) -> Ve
         .filter(|(m, _)| !m.is_empty())
         .map(|(m, &top)| min_area_rectangle(m, top - floor))
         .collect();
-    out.sort_by(|a, b| b.n_points.cmp(&a.n_points));
+    out.sort_by_key(|f| std::cmp::Reverse(f.n_points));
     out
 }
 
@@ -218,13 +227,22 @@ mod tests {
         let fps = footprints(&pts, 0.0, &ProposalParams::default());
         assert_eq!(fps.len(), 2, "{fps:?}");
         let a = &fps[0];
-        assert!((a.centre[0] - 2.0).abs() < 0.04 && (a.centre[1] - 0.5).abs() < 0.04, "{a:?}");
+        assert!(
+            (a.centre[0] - 2.0).abs() < 0.04 && (a.centre[1] - 0.5).abs() < 0.04,
+            "{a:?}"
+        );
         // The long axis along 30 degrees (the search covers a quarter turn).
         assert!((a.yaw.to_degrees() - 30.0).abs() < 3.0, "{a:?}");
-        assert!((a.half[0] - 0.5).abs() < 0.05 && (a.half[1] - 0.2).abs() < 0.05, "{a:?}");
+        assert!(
+            (a.half[0] - 0.5).abs() < 0.05 && (a.half[1] - 0.2).abs() < 0.05,
+            "{a:?}"
+        );
         assert!((a.top - 0.7).abs() < 1e-9);
         let b = &fps[1];
-        assert!((b.centre[0] - 0.5).abs() < 0.04 && (b.centre[1] - 2.0).abs() < 0.04, "{b:?}");
+        assert!(
+            (b.centre[0] - 0.5).abs() < 0.04 && (b.centre[1] - 2.0).abs() < 0.04,
+            "{b:?}"
+        );
         assert!(a.contains([2.3, 0.6], 0.0) && !a.contains([0.5, 2.0], 0.1));
     }
 
@@ -242,13 +260,19 @@ mod tests {
         let (yaw, c) = boxes[0];
         assert_eq!(yaw, 0.0);
         // Along x the footprint is as wide as the box: centred; along y it starts at 2.0.
-        assert!((c.x - 0.0).abs() < 1e-12 && (c.y - 2.5).abs() < 1e-12, "{c}");
+        assert!(
+            (c.x - 0.0).abs() < 1e-12 && (c.y - 2.5).abs() < 1e-12,
+            "{c}"
+        );
         assert!((c.z - (-0.75)).abs() < 1e-12);
         // A quarter turn: the box's 0.8 m x runs along world y.
         let (_, c1) = boxes[1];
         assert!((c1.y - 2.4).abs() < 1e-12 && c1.x.abs() < 1e-12, "{c1}");
         // Behind the camera the box reaches the other way.
-        let back = Footprint { centre: [0.0, -2.15], ..fp };
+        let back = Footprint {
+            centre: [0.0, -2.15],
+            ..fp
+        };
         assert!((back.boxes([0.8, 1.0, 0.5], 0.0)[0].1.y + 2.5).abs() < 1e-12);
     }
 }
