@@ -21,6 +21,8 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
 - ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one
   (``fw0``: none);
 - ``noproposals``: ``refine`` without the footprint proposals (the forests' hypotheses only);
+- ``set:KEY=JSON,...``: ``refine`` with those parameters (``section.key`` for a nested one,
+  e.g. ``set:max_hypotheses=10,proposals.cell=0.04``);
 - ``unexplainedW``: ``refine`` with ``verify.unexplained_weight`` ``W`` (observed surface inside
   a hypothesis' box that its shape does not explain costs ``W`` a cell).
 
@@ -66,16 +68,19 @@ def variant_params(name: str):
         return DetectParams(forest_weight=float(name[2:]))
     if name == "noproposals":
         return DetectParams(proposals=None)
-    if name.startswith("prop:"):  # prop:key=value,key=value (proposal parameters, for tuning)
-        from isa.detection.proposals import ProposalParams
-
-        kv = dict(item.split("=") for item in name[5:].split(","))
-        return DetectParams(proposals=ProposalParams(**{k: type(getattr(ProposalParams(), k))(v) for k, v in kv.items()}))
+    if name.startswith("set:"):  # set:key=JSON,section.key=JSON (any detection parameter, for tuning)
+        p = DetectParams()
+        for item in name[4:].split(","):
+            key, _, value = item.partition("=")
+            section, _, sub = key.rpartition(".")
+            v = json.loads(value)
+            p = replace(p, **{sub: v}) if not section else replace(p, **{section: replace(getattr(p, section), **{sub: v})})
+        return p
     if name.startswith("unexplained"):
         from isa.detection.verify import VerifyParams
 
         return DetectParams(verify=VerifyParams(unexplained_weight=float(name[11:])))
-    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, fwW, unexplainedW for any N, W)")
+    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, fwW, unexplainedW for any N, W; set:KEY=JSON,...)")
 
 
 def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:

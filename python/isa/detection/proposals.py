@@ -25,7 +25,9 @@ class ProposalParams(StageParams):
     ``min_cell_points`` is empty; a footprint needs ``min_points``; ``max_footprints`` largest
     are used; a forest hypothesis within ``vote_margin`` (metres) of a footprint lends it its
     score, and a footprint none lends one to carries ``unvoted`` times the weakest hypothesis'
-    score (0: it proposes nothing for that category). Defaults: the core's."""
+    score (0: it proposes nothing for that category); a footprint longer, higher or lower than
+    the category's sizes (the size fit's 15% margin, then ``size_slack`` metres) proposes nothing
+    for it (None: no check). Defaults: the core's."""
 
     stride: int = _D["stride"]
     cell: float = _D["cell"]
@@ -36,3 +38,4 @@ class ProposalParams(StageParams):
     max_footprints: int = _D["max_footprints"]
     vote_margin: float = _D["vote_margin"]
     unvoted: float = _D["unvoted"]
+    size_slack: float | None = _D["size_slack"]

@@ -214,6 +214,10 @@ pub struct ProposalParams {
     /// A footprint no hypothesis of the category lends a score to carries this fraction of the
     /// weakest hypothesis' score; 0: it proposes nothing for the category. Default 0.5.
     pub unvoted: f64,
+    /// A footprint wider or higher (or lower) than the category's real-world sizes by more than
+    /// this (metres, beyond the size fit's margin) proposes nothing for it; None: no check.
+    /// Default 0.1.
+    pub size_slack: Option<f64>,
 }
 
 impl Default for ProposalParams {
@@ -228,6 +232,7 @@ impl Default for ProposalParams {
             max_footprints: 12,
             vote_margin: 0.2,
             unvoted: 0.5,
+            size_slack: Some(0.1),
         }
     }
 }
@@ -236,6 +241,9 @@ impl ProposalParams {
     pub fn validate(&self) -> Result<()> {
         checked!(self, "proposals."; positive(cell), non_negative(clearance),
             positive(max_height), non_negative(vote_margin), non_negative(unvoted));
+        if let Some(s) = self.size_slack {
+            non_negative("proposals.size_slack", s)?;
+        }
         at_least_one(&named!(self, "proposals."; stride, max_footprints))
     }
 }

@@ -279,6 +279,11 @@ fn proposed(
         if over.is_none() && pp.unvoted == 0.0 {
             continue;
         }
+        if let (Some(r), Some(slack)) = (&model.size_range, pp.size_slack) {
+            if !fp.fits(r, SIZE_MARGIN, slack) {
+                continue;
+            }
+        }
         let forest = over.map_or((fallback, 0), |h| (h.score, h.support));
         for (yaw, centre) in fp.boxes(model.size, floor) {
             let r_up = rot_z(yaw);

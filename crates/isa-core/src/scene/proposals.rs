@@ -14,6 +14,7 @@ use std::f64::consts::FRAC_PI_2;
 
 use nalgebra::Vector3;
 
+use super::shapes::SizeRange;
 use crate::params::ProposalParams;
 
 /// Yaw steps of the minimum-area rectangle search (over a quarter turn).
@@ -49,6 +50,16 @@ impl Footprint {
         let (dx, dy) = (q[0] - self.centre[0], q[1] - self.centre[1]);
         (dx * c + dy * s).abs() <= self.half[0] + margin
             && (-dx * s + dy * c).abs() <= self.half[1] + margin
+    }
+
+    /// Whether the footprint could be an object of sizes `range` (widened by `margin`, a
+    /// fraction, and then by `slack` metres): its longer side no longer than the longest and
+    /// its top between the lowest and the highest.
+    pub fn fits(&self, range: &SizeRange, margin: f64, slack: f64) -> bool {
+        let long = 2.0 * self.half[0].max(self.half[1]);
+        long <= (1.0 + margin) * range.length[1] + slack
+            && self.top >= (1.0 - margin) * range.height[0] - slack
+            && self.top <= (1.0 + margin) * range.height[1] + slack
     }
 
     /// A box of extents `size` (object x, y, z) standing on the floor at `floor`, in the four
@@ -244,6 +255,18 @@ mod tests {
             "{b:?}"
         );
         assert!(a.contains([2.3, 0.6], 0.0) && !a.contains([0.5, 2.0], 0.1));
+        // The 1 m long, 0.7 m high block could be a table but not a chair.
+        let table = SizeRange {
+            height: [0.38, 0.8],
+            length: [0.45, 2.2],
+        };
+        let chair = SizeRange {
+            height: [0.75, 1.1],
+            length: [0.42, 0.75],
+        };
+        assert!(a.fits(&table, 0.15, 0.1) && !a.fits(&chair, 0.15, 0.1));
+        // 0.5 m wide but 0.45 m high: lower than 0.85 x 0.75 - 0.1 m, within 0.2 m of it.
+        assert!(!b.fits(&chair, 0.15, 0.1) && b.fits(&chair, 0.15, 0.2));
     }
 
     #[test]
