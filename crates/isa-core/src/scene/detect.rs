@@ -2,7 +2,11 @@
 //! votes on the cleaned depth, hypotheses snapped upright and set on the floor, verification
 //! against each category's shapes with a size fit, refinement of the best, the forest's score
 //! as a small term, NMS across categories. Categories and hypotheses run in parallel (rayon);
-//! results do not depend on the thread count.
+//! results do not depend on the thread count. Footprint proposals ([`super::proposals`]) join
+//! the forests' hypotheses before verification.
+//!
+//! (Over 600 lines: the steps here share the private hypothesis-in-flight `Cand` and the
+//! frame's `Scene`; the geometry of each stage lives in its own module.)
 
 use std::time::Instant;
 
