@@ -80,7 +80,8 @@ def variant_params(name: str):
         from isa.detection.verify import VerifyParams
 
         return DetectParams(verify=VerifyParams(unexplained_weight=float(name[11:])))
-    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} (turnsN, fwW, unexplainedW for any N, W; set:KEY=JSON,...)")
+    raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} "
+                    "(turnsN, fwW, unexplainedW for any N, W; set:KEY=JSON,...)")
 
 
 def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:
