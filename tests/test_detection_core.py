@@ -112,7 +112,8 @@ def test_core_detect_matches_the_numpy_path_on_a_rendered_room(monkeypatch):
 def test_footprint_proposals_find_an_object_the_forest_gives_no_hypothesis_for():
     """With the forest's hypotheses withheld (an empty list), the footprint of a chair standing
     in a rendered room still proposes its box, and verification with the chairs' shapes puts it
-    within 10 cm of the chair's true box centre; without proposals nothing is detected."""
+    within 10 cm of the chair's true box centre; without proposals, or without verification to
+    judge them, nothing is detected."""
     from isa.detection import DetectParams, train_detector
     from isa.detection.category_boxes import model_box
     from isa.forest import ForestParams
@@ -131,6 +132,9 @@ def test_footprint_proposals_find_an_object_the_forest_gives_no_hypothesis_for()
     frame = np.ascontiguousarray(depth, np.float32)
     none = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams(proposals=None).to_dict())
     assert none["detections"] == []
+    # Without verification a proposal has nothing to be judged by: none are made.
+    unverified = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams(verify=None).to_dict())
+    assert unverified["detections"] == []
     best = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams().to_dict())["detections"][0]
     centre = Rg @ (np.asarray(best["R"]) @ np.asarray(best["box_centre"]) + np.asarray(best["t"]))
     assert np.linalg.norm(centre[:2] - truth[:2]) < 0.10, (centre, truth)

@@ -496,8 +496,10 @@ pub fn detect(
         rg_inv,
         floor,
     };
+    // Proposals only where verification can judge them: they carry no evidence of their own.
+    let verified = |m: &SceneModel<'_>| m.shapes.is_some() && p.verify.is_some();
     let fps = match (&p.proposals, floor, &planes) {
-        (Some(pp), Some(f), Some(_)) => {
+        (Some(pp), Some(f), Some(_)) if models.iter().any(verified) => {
             let pts = upright_points(&Frame::new(&clean, camera)?, &rg, pp.stride, Some(f), 0.0);
             let mut fps = footprints(&pts, f, pp);
             fps.truncate(pp.max_footprints);
@@ -516,7 +518,7 @@ pub fn detect(
         .zip(&per_model)
         .map(|(m, hyps)| {
             let mut cands = candidates(m, hyps, &sc, p);
-            if let (Some(pp), Some(f)) = (&p.proposals, floor) {
+            if let (Some(pp), Some(f), true) = (&p.proposals, floor, verified(m)) {
                 cands.extend(proposed(m, hyps, &fps, f, &sc, pp));
             }
             if let (Some(lib), Some(vp)) = (m.shapes, &p.verify) {
