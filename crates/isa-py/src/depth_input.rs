@@ -100,6 +100,12 @@ fn stored(depth: &Bound<'_, PyAny>, k: &Intrinsics) -> PyResult<(Stored, usize, 
     let py = depth.py();
     let dt = arr.dtype();
     if sh.len() == 3 && sh[2] == 3 {
+        if sh[0] == 0 || sh[1] == 0 {
+            return Err(input_err(format!(
+                "depth: an organised point cloud needs at least one row and column, got {}",
+                describe(depth)
+            )));
+        }
         // An organised cloud: its points projected (each lands on its own pixel when the
         // intrinsics are the cloud's), in the cloud's unit.
         let a = array::<f64>(
