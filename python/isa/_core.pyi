@@ -31,6 +31,8 @@ __all__ = [
     "MODEL_FORMAT_VERSION",
     "ModelFormatError",
     "PREDICT_DEFAULTS",
+    "RANKER_FORMAT",
+    "RANK_FEATURES",
     "SHAPES_FORMAT_VERSION",
     "SHARD_MANIFEST",
     "ShapeLibrary",
@@ -39,6 +41,7 @@ __all__ = [
     "__version__",
     "_cli_main",
     "_testing",
+    "check_ranker",
     "default_predict_params",
     "depth_from_points",
     "depth_to_metres",
@@ -417,7 +420,7 @@ def detect(
 ) -> dict[str, Any]:
     """Every category model over one frame (``isa_core::scene::detect``): ``depth`` (H, W) float32
     metres; ``models`` dicts ``{"category", "forest", "size", "ssc_offset", "shapes", "size_range",
-    "hypotheses"}``; ``gravity`` (3, 3) camera -> upright or None; ``planes`` a ``find_planes``
+    "hypotheses", "ranker"}`` (``ranker`` its JSON text or None); ``gravity`` (3, 3) camera -> upright or None; ``planes`` a ``find_planes``
     answer or None; ``params`` a ``DETECT_DEFAULTS``-shaped dict. Returns ``{"detections",
     "gravity", "gravity_source", "floor_height", "planes", "seconds"}``."""
 
@@ -444,7 +447,15 @@ def verify_pose(
     n_points: int | None = None,
 ) -> dict[str, Any]:
     """Verification of shape ``points`` at ``(R, t)``: ``{"score", "agree", "violate",
-    "occluded", "missing", "outside"}``."""
+    "occluded", "missing", "outside", "unexplained"}``."""
+
+RANK_FEATURES: list[str]
+"""The features a ranker may use (``isa_core::scene::ranking::FEATURES``), in order."""
+RANKER_FORMAT: int
+"""The ranker file format this build reads and writes."""
+
+def check_ranker(text: str, source: str) -> str:
+    """A ranker's JSON text checked (errors name ``source``), in the core's layout."""
 
 def refine_pose(
     points_up: npt.NDArray[np.float64],

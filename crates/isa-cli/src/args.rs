@@ -309,7 +309,9 @@ pub enum DetectFormat {
 /// found and removed for the voting, each category forest votes, hypotheses are snapped upright,
 /// set on the floor, verified against the category's training shapes (`<model>.shapes.isl`
 /// beside the model, or in --shapes DIR as `<category>.shapes.isl`; without one the forest's
-/// score and box are used), sized, refined by ICP, and suppressed across categories. Parameters:
+/// score and box are used), sized, refined by ICP, suppressed across categories, and scored by
+/// each category's ranker when it has one (`<model>.ranker.json`, or in --rankers DIR as
+/// `<category>.ranker.json`; fitted by `python -m isa.detection.ranking`). Parameters:
 /// the core's DetectParams, overridden by `--params`, overridden by the flags. Example:
 ///
 ///   isa detect --model chair.isa --model table.isa depth.png --camera camera.json --gravity 0,1,0
@@ -344,6 +346,10 @@ pub struct DetectArgs {
     /// each model].
     #[arg(long, value_name = "DIR")]
     pub shapes: Option<PathBuf>,
+    /// Folder of rankers `<category>.ranker.json` [default: `<model>.ranker.json` beside each
+    /// model, when it exists].
+    #[arg(long, value_name = "DIR")]
+    pub rankers: Option<PathBuf>,
     /// BOP scene id for --format bop.
     #[arg(long, default_value_t = 0)]
     pub scene_id: u64,

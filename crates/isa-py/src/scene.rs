@@ -243,7 +243,8 @@ pub fn find_planes<'py>(
 
 /// Verification of shape `points` (N, 3) (mean `spacing`) at pose `(R, t)` against `depth`
 /// ((H, W) float32 metres; `planes` (H, W) bool or None): `{"score", "agree", "violate",
-/// "occluded", "missing", "outside"}`.
+/// "occluded", "missing", "outside", "unexplained"}` (unexplained counted only with a positive
+/// `unexplained_weight`).
 #[pyfunction]
 #[pyo3(signature = (depth, K, R, t, points, spacing, planes=None, params=None, n_points=None))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
@@ -287,7 +288,7 @@ pub fn verify_pose<'py>(
     };
     let v = scene::verify::verify_pose(&ev, &r, &t, &pts, [1.0; 3], spacing, &p, n_points);
     let out = PyDict::new(py);
-    set_fields!(out, v; score, agree, violate, occluded, missing, outside);
+    set_fields!(out, v; score, agree, violate, occluded, missing, outside, unexplained);
     Ok(out)
 }
 
@@ -450,7 +451,22 @@ pub fn detect<'py>(
             }
             None => None,
         };
-        meta.push((category, size, ssc, range, hyps));
+        let ranker = match m.get_item("ranker")?.filter(|r| !r.is_none()) {
+            Some(r) => {
+                let text: String = r.extract().map_err(|_| {
+                    input_err(format!(
+                        "models[{i}].ranker: expected the ranker's JSON text, got {}",
+                        describe(&r)
+                    ))
+                })?;
+                Some(
+                    scene::Ranker::from_json(&text, &format!("models[{i}].ranker"))
+                        .map_err(to_py)?,
+                )
+            }
+            None => None,
+        };
+        meta.push((category, size, ssc, range, hyps, ranker));
     }
     // Each forest's trees, held for the call (a concurrent fit replaces them, never these).
     let cores = forests
@@ -458,7 +474,7 @@ pub fn detect<'py>(
         .map(|f| f.get().core())
         .collect::<PyResult<Vec<_>>>()?;
     let mut core_models = Vec::new();
-    for (i, (category, size, ssc, range, hyps)) in meta.iter().enumerate() {
+    for (i, (category, size, ssc, range, hyps, ranker)) in meta.iter().enumerate() {
         core_models.push(scene::SceneModel {
             category,
             forest: &cores[i],
@@ -467,6 +483,7 @@ pub fn detect<'py>(
             shapes: libs[i].as_ref().map(|l| &l.get().lib),
             size_range: *range,
             hypotheses: hyps.as_deref(),
+            ranker: ranker.as_ref(),
         });
     }
     let given_planes = match given(planes) {
@@ -520,6 +537,16 @@ pub fn detect<'py>(
         e.set_item("size", vector(py, x.size.to_vec()))?;
         e.set_item("box_centre", vector(py, x.box_centre.to_vec()))?;
         set_fields!(e, x; score, support, forest_score, rank, tilt_deg, shape, refined, turn);
+        match &x.features {
+            Some(f) => {
+                let fd = PyDict::new(py);
+                for (name, v) in scene::ranking::FEATURES.iter().zip(f) {
+                    fd.set_item(name, v)?;
+                }
+                e.set_item("features", fd)?;
+            }
+            None => e.set_item("features", py.None())?,
+        }
         dets.append(e)?;
     }
     res.set_item("detections", dets)?;
@@ -538,9 +565,21 @@ pub fn detect<'py>(
     Ok(res)
 }
 
+/// A ranker's JSON text checked (`isa_core::scene::ranking::Ranker`; errors name `source`),
+/// returned in the core's own layout.
+#[pyfunction]
+pub fn check_ranker(text: &str, source: &str) -> PyResult<String> {
+    Ok(scene::Ranker::from_json(text, source)
+        .map_err(to_py)?
+        .to_json())
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<PyShapeLibrary>()?;
+    m.add("RANK_FEATURES", scene::ranking::FEATURES.to_vec())?;
+    m.add("RANKER_FORMAT", scene::ranking::RANKER_FORMAT)?;
+    m.add_function(wrap_pyfunction!(check_ranker, m)?)?;
     m.add(
         "SHAPES_FORMAT_VERSION",
         scene::shapes::SHAPES_FORMAT_VERSION,

@@ -1,7 +1,7 @@
 """Score detection variants on a scene benchmark split, beside the one-class baseline.
 
     python -m isa.detection.evaluate --scenes ROOT --split val --model chair=chair.isa ... \\
-        [--shapes DIR] [--foreground DIR] [--variants baseline verify refine] [--json out.json]
+        [--shapes DIR] [--foreground DIR] [--rankers DIR] [--variants baseline verify refine] [--json out.json]
 
 Every variant runs on the same frames (:func:`isa.scenes.io.read_scene_dataset`, the scene's
 gravity given unless the variant says ``nogravity``) and is scored by
@@ -21,13 +21,17 @@ the paper's Eq. 14, z = 0.1; objects under 30% visible ignored). Variants:
 - ``fwW``: ``refine`` with ``W`` times the log of the forest's score added to the verified one
   (``fw0``: none);
 - ``noproposals``: ``refine`` without the footprint proposals (the forests' hypotheses only);
+- ``noranker``: ``refine`` without the models' rankers (the verification score ranks); every
+  other variant but ``baseline`` and ``forest`` ranks with them when the models have one;
 - ``set:KEY=JSON,...``: ``refine`` with those parameters (``section.key`` for a nested one,
   e.g. ``set:max_hypotheses=10,proposals.cell=0.04``);
 - ``unexplainedW``: ``refine`` with ``verify.unexplained_weight`` ``W`` (observed surface inside
   a hypothesis' box that its shape does not explain costs ``W`` a cell).
 
 ``--shapes DIR`` holds ``<category>.shapes.npz`` (:func:`isa.detection.shapes.bop_shape_library`
-writes them from the training renders), ``--foreground DIR`` ``<category>.foreground.npz``.
+writes them from the training renders), ``--foreground DIR`` ``<category>.foreground.npz``,
+``--rankers DIR`` ``<category>.ranker.json`` (:mod:`isa.detection.ranking` fits them on
+validation rooms).
 """
 
 from __future__ import annotations
@@ -47,7 +51,8 @@ from isa.exceptions import DataError
 
 __all__ = ["VARIANTS", "variant_params", "run_variant", "found_within", "main"]
 
-VARIANTS = ("baseline", "forest", "verify", "refine", "turns2", "turns4", "foreground", "nogravity", "noproposals")
+VARIANTS = ("baseline", "forest", "verify", "refine", "turns2", "turns4", "foreground", "nogravity", "noproposals",
+            "noranker")
 
 
 def variant_params(name: str):
@@ -62,7 +67,7 @@ def variant_params(name: str):
         return DetectParams(refine=None)
     if name.startswith("turns"):
         return DetectParams(turns=int(name[5:]))
-    if name in ("refine", "foreground", "nogravity"):
+    if name in ("refine", "foreground", "nogravity", "noranker"):
         return DetectParams()
     if name.startswith("fw"):
         return DetectParams(forest_weight=float(name[2:]))
@@ -97,7 +102,9 @@ def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[l
     # Only the ``foreground`` variant keeps the forests' leaf weights.
     use = models if name == "foreground" else [replace(m, forest=m.forest.with_leaf_weights(None)) for m in models]
     if name == "forest":
-        use = [replace(m, shapes=None) for m in use]
+        use = [replace(m, shapes=None, ranker=None) for m in use]
+    if name == "noranker":
+        use = [replace(m, ranker=None) for m in use]
     out, secs = [], []
     for f in tqdm(views, desc=name, unit="frame", disable=not progress):
         t0 = time.perf_counter()
@@ -146,6 +153,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz")
     p.add_argument("--foreground", type=Path,
                    help="folder of <category>.foreground.npz (a category without one votes unweighted)")
+    p.add_argument("--rankers", type=Path, help="folder of <category>.ranker.json (default: beside each model)")
     p.add_argument("--variants", nargs="+", default=["baseline", "forest", "verify", "refine"])
     p.add_argument("--limit", type=int, default=None, help="first N frames only")
     p.add_argument("--json", type=Path, help="write the numbers here")
@@ -162,7 +170,8 @@ def main(argv: list[str] | None = None) -> None:
         if fg is not None and not fg.is_file():
             print(f"{cat}: no {fg.name} in {a.foreground}, its votes are not weighted")
             fg = None
-        models.append(load_model(path, shapes=shapes, category=cat, foreground=fg))
+        rk = a.rankers / f"{cat}.ranker.json" if a.rankers else None
+        models.append(load_model(path, shapes=shapes, category=cat, foreground=fg, ranker=rk))
     cats = [m.category for m in models]
     if bool(a.scenes) == bool(a.sun):
         raise SystemExit("give one of --scenes ROOT or --sun DIR")

@@ -15,6 +15,10 @@
 6. **NMS across categories**: one ranked list; a box overlapping a better one (3D IoU over
    ``nms_iou``, or a smaller box with over ``nms_overlap`` of its volume inside the better one)
    is dropped, whatever its category, since a place holds one object.
+7. **Ranking** (:mod:`isa.detection.ranking`): the kept detections of a model with a ranker are
+   scored by it (the probability of a true object, from the verification's counts, the forest's
+   score and the size fit) and sorted again. Every kept detection of a verified model carries
+   those features in ``meta["features"]``.
 
 The core runs every step (``isa._core.detect``, ``isa_core::scene::detect``; categories and
 hypotheses in parallel); this module loads models, mirrors the parameters (defaults from
@@ -52,24 +56,29 @@ __all__ = ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "Det
 class CategoryModel:
     """A category's forest (with its leaf weights, if any: :mod:`isa.detection.background`),
     its box (size and origin offset, :class:`isa.detection.CategoryBox`) and its shape library
-    (None: no verification, the forest's score and box are used)."""
+    (None: no verification, the forest's score and box are used), and its ranker
+    (:class:`isa.detection.ranking.Ranker`; None: the verification score ranks)."""
 
     category: str
     forest: Any
     box: Any
     shapes: ShapeLibrary | None = None
+    ranker: Any = None
 
 
 def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None,
-               category: str | None = None, foreground: str | Path | None = None) -> CategoryModel:
+               category: str | None = None, foreground: str | Path | None = None,
+               ranker: str | Path | Any = None) -> CategoryModel:
     """A :class:`CategoryModel` from a model file; ``shapes`` a library or its ``.isl`` / ``.npz``
     (default: ``<model>.shapes.isl``, else ``<model>.shapes.npz``, beside the model when it
     exists); ``foreground`` a leaf foreground file (``.foreground.npz``, as
     ``python -m isa.detection.background -o X.npz`` writes; default ``<model>.foreground.npz``
     when it exists) whose probabilities become the forest's leaf weights, replacing any the
-    model file holds."""
+    model file holds; ``ranker`` a :class:`isa.detection.ranking.Ranker` or its ``.ranker.json``
+    (default: ``<model>.ranker.json`` beside the model when it exists)."""
     from isa.detection.background import LeafForeground
     from isa.detection.category_boxes import model_box
+    from isa.detection.ranking import Ranker
     from isa.forest.model import Forest
 
     path = Path(path)
@@ -87,7 +96,11 @@ def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None
     if foreground is not None:
         fg = foreground if isinstance(foreground, LeafForeground) else LeafForeground.load(foreground)
         forest = forest.with_leaf_weights(fg.leaf_weights(forest))
-    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes)
+    if ranker is None and path.with_suffix(".ranker.json").is_file():
+        ranker = path.with_suffix(".ranker.json")
+    if ranker is not None and not isinstance(ranker, Ranker):
+        ranker = Ranker.load(ranker)
+    return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes, ranker)
 
 
 @dataclass(frozen=True)
@@ -143,7 +156,8 @@ class SceneDetection:
     """One detected object: ``category``; pose ``R`` (3, 3), ``t`` (3,) metres (object to camera,
     ``t`` the category's origin); ``size`` (3,) its extents along its own x, y, z; ``box_centre``
     (3,) that box's centre in the object frame; ``score`` (verification score when shapes are
-    given, else the forest's); ``support`` the votes behind it; ``meta`` (forest score, shape,
+    given, else the forest's; a ranker's probability when the model has one); ``support`` the
+    votes behind it; ``meta`` (forest score, ranking features, shape,
     refinement)."""
 
     category: str
@@ -239,11 +253,12 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     ms = _models(models)
     g = None if gravity is None else np.asarray(gravity, dtype=float).reshape(3, 3)
     specs = [{"category": m.category, "forest": m.forest, "size": m.box.size, "ssc_offset": m.box.ssc_offset,
-              "shapes": None if m.shapes is None else m.shapes.core, "size_range": _size_range(m)}
+              "shapes": None if m.shapes is None else m.shapes.core, "size_range": _size_range(m),
+              "ranker": None if m.ranker is None else m.ranker.to_json()}
              for m in ms]
     out = _core.detect(np.ascontiguousarray(depth), intrinsics, specs, g, params=params.to_dict())
     dets = [SceneDetection(d["category"], d["R"], d["t"], d["size"], d["box_centre"], d["score"], d["support"],
-                           {k: d[k] for k in ("forest_score", "rank", "tilt_deg", "shape", "refined", "turn")})
+                           {k: d[k] for k in ("forest_score", "rank", "tilt_deg", "shape", "refined", "turn", "features")})
             for d in out["detections"]]
     grav = GravityEstimate(out["gravity"], out["gravity_source"])
     return DetectResult(dets, grav, out["floor_height"], dict(out["seconds"]))

@@ -78,7 +78,9 @@ class VerifyParams(StageParams):
 
 @dataclass(frozen=True)
 class Verification:
-    """Counts of visible shape cells per outcome and the score (see the module docstring)."""
+    """Counts of visible shape cells per outcome and the score (see the module docstring);
+    ``unexplained`` observed cells (counted only with a positive ``unexplained_weight``, else 0;
+    not part of :attr:`cells`)."""
 
     score: float
     agree: int
@@ -86,6 +88,7 @@ class Verification:
     occluded: int
     missing: int
     outside: int = 0
+    unexplained: int = 0
 
     @property
     def cells(self) -> int:

@@ -7,7 +7,7 @@ use serde_json::{json, Value};
 
 use isa_core::rotation::pose_matrix;
 use isa_core::scene::gravity::rotation_from_up;
-use isa_core::scene::{self, Camera, DetectOutput, SceneModel, ShapeLibrary};
+use isa_core::scene::{self, Camera, DetectOutput, Ranker, SceneModel, ShapeLibrary};
 use isa_core::{DetectParams, Forest, Valid};
 
 use super::predict::{each_image, image_jobs, ImageJob};
@@ -23,6 +23,7 @@ struct Model {
     path: PathBuf,
     forest: Forest,
     shapes: Option<(ShapeLibrary, PathBuf)>,
+    ranker: Option<(Ranker, PathBuf)>,
 }
 
 /// One image's detections, with its job, the core's warnings about it and its time.
@@ -74,11 +75,26 @@ fn load_models(a: &DetectArgs) -> CliResult<Vec<Model>> {
         } else {
             None
         };
+        let ranker_path = match &a.rankers {
+            Some(dir) => dir.join(format!("{category}.ranker.json")),
+            None => path.with_extension("ranker.json"),
+        };
+        let ranker = if ranker_path.exists() {
+            let text =
+                std::fs::read_to_string(&ranker_path).map_err(|e| CliError::io(&ranker_path, e))?;
+            let r = Ranker::from_json(&text, &ranker_path.display().to_string())?;
+            Some((r, ranker_path))
+        } else if a.rankers.is_some() {
+            return Err(CliError::missing(&ranker_path, "ranker"));
+        } else {
+            None
+        };
         out.push(Model {
             category,
             path,
             forest,
             shapes,
+            ranker,
         });
     }
     Ok(out)
@@ -148,6 +164,7 @@ fn to_json(models: &[Model], params: &DetectParams, results: &[FrameResult]) -> 
         "models": models.iter().map(|m| json!({
             "category": m.category, "model": m.path.display().to_string(),
             "shapes": m.shapes.as_ref().map(|s| s.1.display().to_string()),
+            "ranker": m.ranker.as_ref().map(|r| r.1.display().to_string()),
         })).collect::<Vec<_>>(),
         "units": units(),
         "params": params,
@@ -202,6 +219,10 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
                 m.shapes.as_ref().map(|s| &s.0),
                 &m.path.display().to_string(),
             )
+            .map(|sm| SceneModel {
+                ranker: m.ranker.as_ref().map(|r| &r.0),
+                ..sm
+            })
             .map_err(|e| CliError::input(e.to_string()))
         })
         .collect::<CliResult<Vec<_>>>()?;

@@ -18,6 +18,7 @@ use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource}
 use super::nms::{nms_across, UprightBox};
 use super::planes::{find_planes, Planes};
 use super::proposals::{footprints, Footprint};
+use super::ranking::{features, Ranker, FEATURES};
 use super::refine::{refine_pose, upright_points};
 use super::shapes::{ShapeLibrary, SizeRange};
 use super::verify::{verify_pose, Evidence, Verification};
@@ -45,6 +46,7 @@ pub struct SceneModel<'a> {
     pub shapes: Option<&'a ShapeLibrary>,
     pub size_range: Option<SizeRange>,
     pub hypotheses: Option<&'a [Hypothesis]>,
+    pub ranker: Option<&'a Ranker>,
 }
 
 impl<'a> SceneModel<'a> {
@@ -69,6 +71,7 @@ impl<'a> SceneModel<'a> {
             shapes,
             size_range: shapes.and_then(|l| l.size_range),
             hypotheses: None,
+            ranker: None,
         })
     }
 }
@@ -93,6 +96,9 @@ pub struct Detection {
     pub shape: Option<usize>,
     pub refined: bool,
     pub turn: usize,
+    /// What ranking reads ([`super::ranking::FEATURES`]), for detections kept by NMS of
+    /// verified models.
+    pub features: Option<[f64; FEATURES.len()]>,
 }
 
 /// What [`detect`] found: detections best first, the gravity rotation used and its source, the
@@ -592,7 +598,9 @@ pub fn detect(
     }
     lap("refine", &mut secs);
     let mut dets = Vec::new();
-    for (m, cands) in models.iter().zip(per_cat) {
+    // Each detection's fitted scale and model.
+    let mut owner: Vec<([f64; 3], usize)> = Vec::new();
+    for (mi, (m, cands)) in models.iter().zip(per_cat).enumerate() {
         let verified = m.shapes.is_some() && p.verify.is_some();
         for mut c in cands {
             if verified && p.forest_weight != 0.0 {
@@ -625,14 +633,20 @@ pub fn detect(
                 shape: c.shape,
                 refined: c.refined,
                 turn: c.turn,
+                features: None,
             });
+            owner.push((c.scale, mi));
         }
     }
     let boxes: Vec<UprightBox> = dets.iter().map(|d| upright_box(d, &rg)).collect();
     let mut keep = nms_across(&boxes, p.nms_iou, p.nms_overlap);
     keep.truncate(p.max_detections);
-    let detections = keep.into_iter().map(|i| dets[i].clone()).collect();
     lap("nms", &mut secs);
+    let detections = match &p.verify {
+        Some(vp) => rank(&dets, &owner, &keep, models, &sc, vp),
+        None => keep.into_iter().map(|i| dets[i].clone()).collect(),
+    };
+    lap("rank", &mut secs);
     Ok(DetectOutput {
         detections,
         gravity: rg,
@@ -641,6 +655,46 @@ pub fn detect(
         planes,
         seconds: secs,
     })
+}
+
+/// The detections `keep` (best first) with their features, those of models with a ranker
+/// scored by it and all sorted again (stable: ties keep the NMS order). The features come from
+/// one full verification at the final pose that also counts the unexplained cells.
+fn rank(
+    dets: &[Detection],
+    owner: &[([f64; 3], usize)],
+    keep: &[usize],
+    models: &[SceneModel<'_>],
+    sc: &Scene<'_>,
+    vp: &VerifyParams,
+) -> Vec<Detection> {
+    // The smallest positive weight counts the cells and leaves the score as it is (a count
+    // times 2e-308 vanishes beside the other terms).
+    let counting = VerifyParams {
+        unexplained_weight: vp.unexplained_weight.max(f64::MIN_POSITIVE),
+        ..vp.clone()
+    };
+    let mut out: Vec<Detection> = keep
+        .par_iter()
+        .map(|&i| {
+            let mut d = dets[i].clone();
+            let (scale, mi) = owner[i];
+            let m = &models[mi];
+            if let (Some(lib), Some(s)) = (m.shapes, d.shape) {
+                let r = super::mat(&d.r);
+                let t = Vector3::from(d.t);
+                let (v, _) = sc.verify_scaled(&r, &t, lib, s, scale, &counting, None);
+                let f = features(&d, &v, scale);
+                if let Some(rk) = m.ranker {
+                    d.score = rk.probability(&f);
+                }
+                d.features = Some(f);
+            }
+            d
+        })
+        .collect();
+    out.sort_by(|a, b| b.score.total_cmp(&a.score));
+    out
 }
 
 /// A detection's gravity-aligned box in the upright frame.

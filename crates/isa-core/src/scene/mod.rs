@@ -11,7 +11,8 @@
 //! * [`verify`]: z-buffered, point-sampled training shapes ([`shapes`]) against the raw depth;
 //!   the best shape and a per-axis scale give the score and the size;
 //! * [`refine`]: upright ICP (yaw and translation) of the best hypotheses;
-//! * [`nms`]: one ranked list, boxes suppressed across categories.
+//! * [`nms`]: one ranked list, boxes suppressed across categories;
+//! * [`ranking`]: the kept detections scored by each category's ranker (optional).
 //!
 //! Frames: `R_gravity` maps camera to upright coordinates (`X_up = R_gravity X_cam`, z up); a
 //! pose `(R, t)` maps object to camera (`X_cam = R X_obj + t`). All geometry is `f64`.
@@ -21,12 +22,14 @@ pub mod gravity;
 pub mod nms;
 pub mod planes;
 pub mod proposals;
+pub mod ranking;
 pub mod refine;
 pub mod shapes;
 pub mod verify;
 
 pub use crate::params::{DetectParams, PlaneParams, ProposalParams, RefineParams, VerifyParams};
 pub use detect::{detect, DetectOutput, Detection, SceneModel};
+pub use ranking::Ranker;
 pub use shapes::{ShapeLibrary, SizeRange};
 
 use nalgebra::{Matrix3, Vector3};

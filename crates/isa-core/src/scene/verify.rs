@@ -29,7 +29,8 @@ pub struct Evidence<'a> {
     pub planes: Option<&'a [bool]>,
 }
 
-/// Counts of visible shape cells per outcome and the score.
+/// Counts of visible shape cells per outcome and the score; `unexplained` observed cells
+/// (counted only when `unexplained_weight` > 0, else 0).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Verification {
     pub score: f64,
@@ -38,6 +39,7 @@ pub struct Verification {
     pub occluded: usize,
     pub missing: usize,
     pub outside: usize,
+    pub unexplained: usize,
 }
 
 /// The front-most point per `cell_px` image cell of camera-frame points: `(index, u, v,
@@ -201,6 +203,7 @@ pub fn verify_pose(
         occluded,
         missing,
         outside,
+        unexplained,
     }
 }
 

@@ -1,0 +1,279 @@
+//! Ranking: a detection's score as the probability that it is a true object, from what the
+//! earlier stages measured about it (the verification counts, the forest's word, the size fit,
+//! the pose). A [`Ranker`] is a logistic model per category, fitted on validation rooms
+//! (`isa.detection.ranking`) and stored as JSON beside the model (`<model>.ranker.json`).
+//!
+//! Why: the verification score alone ranks a panel that agrees with any box face (a chair seen
+//! from behind, a cabinet under a table hypothesis) above a half-hidden real object; the counts
+//! it is made of, with the forest's score and the fitted size, tell them apart better. The
+//! probability is also what makes scores of different categories and frames comparable.
+
+use serde::{Deserialize, Serialize};
+
+use super::verify::Verification;
+use super::Detection;
+use crate::error::{IsaError, Result};
+
+/// The ranker file format this build writes and reads.
+pub const RANKER_FORMAT: u32 = 1;
+
+/// The features a ranker may use, in the order [`features`] returns them.
+pub const FEATURES: [&str; 17] = [
+    "verify_score",
+    "agree",
+    "violate",
+    "occluded",
+    "outside",
+    "missing",
+    "unexplained",
+    "log_agree",
+    "log_forest_score",
+    "log_support",
+    "rank",
+    "tilt_deg",
+    "refined",
+    "depth",
+    "scale_change",
+    "height",
+    "length",
+];
+
+/// A detection's features (named by [`FEATURES`]): the verification's score and its counts as
+/// fractions of the visible shape cells, `ln(1 + agree)`, the forest's log score and support,
+/// the hypothesis' rank and tilt, whether refinement moved it, its depth (camera z, metres),
+/// the size fit's largest `|ln scale|` (`scale`: the fitted size over the shape's own), and its
+/// height and horizontal length (metres).
+pub fn features(d: &Detection, v: &Verification, scale: [f64; 3]) -> [f64; FEATURES.len()] {
+    let n = (v.agree + v.violate + v.occluded + v.outside).max(1) as f64;
+    let frac = |k: usize| k as f64 / n;
+    [
+        v.score,
+        frac(v.agree),
+        frac(v.violate),
+        frac(v.occluded),
+        frac(v.outside),
+        frac(v.missing),
+        frac(v.unexplained),
+        (1.0 + v.agree as f64).ln(),
+        d.forest_score.max(1e-6).ln(),
+        (1.0 + d.support as f64).ln(),
+        d.rank as f64,
+        d.tilt_deg,
+        f64::from(u8::from(d.refined)),
+        d.t[2],
+        scale.iter().map(|s| s.ln().abs()).fold(0.0, f64::max),
+        d.size[2],
+        d.size[0].max(d.size[1]),
+    ]
+}
+
+/// A logistic model of one category: `P(true) = 1 / (1 + exp(-(bias + sum_i w_i (f_i - mean_i)
+/// / scale_i)))` over the named features; `fitted_on` says on what (free text).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ranker {
+    pub format: u32,
+    pub category: String,
+    pub features: Vec<String>,
+    pub mean: Vec<f64>,
+    pub scale: Vec<f64>,
+    pub weights: Vec<f64>,
+    pub bias: f64,
+    #[serde(default)]
+    pub fitted_on: String,
+}
+
+impl Ranker {
+    /// A ranker from its JSON text, checked; errors name `source`.
+    pub fn from_json(text: &str, source: &str) -> Result<Self> {
+        let r: Ranker = serde_json::from_str(text)
+            .map_err(|e| IsaError::InvalidInput(format!("{source}: not a ranker ({e})")))?;
+        r.validate().map_err(|e| match e {
+            IsaError::InvalidInput(m) => IsaError::InvalidInput(format!("{source}: {m}")),
+            other => other,
+        })?;
+        Ok(r)
+    }
+
+    /// The ranker as JSON (what [`Ranker::from_json`] reads).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("a ranker serialises")
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(IsaError::InvalidInput(m));
+        if self.format != RANKER_FORMAT {
+            return bad(format!(
+                "ranker format {} (this build reads {RANKER_FORMAT})",
+                self.format
+            ));
+        }
+        let n = self.features.len();
+        if n == 0 || self.mean.len() != n || self.scale.len() != n || self.weights.len() != n {
+            return bad(format!(
+                "ranker: {n} features, {} means, {} scales and {} weights (must be equal and >= 1)",
+                self.mean.len(),
+                self.scale.len(),
+                self.weights.len()
+            ));
+        }
+        if let Some(f) = self
+            .features
+            .iter()
+            .find(|f| !FEATURES.contains(&f.as_str()))
+        {
+            return bad(format!(
+                "ranker: unknown feature {f:?}; known: {}",
+                FEATURES.join(", ")
+            ));
+        }
+        let finite = self
+            .mean
+            .iter()
+            .chain(&self.weights)
+            .chain(std::iter::once(&self.bias))
+            .all(|x| x.is_finite());
+        if !finite || !self.scale.iter().all(|s| s.is_finite() && *s > 0.0) {
+            return bad("ranker: means, weights and bias must be finite, scales positive".into());
+        }
+        Ok(())
+    }
+
+    /// The probability that a detection with features `f` (all of [`FEATURES`], in order) is
+    /// a true object.
+    pub fn probability(&self, f: &[f64; FEATURES.len()]) -> f64 {
+        let z = self.bias
+            + self
+                .features
+                .iter()
+                .zip(&self.mean)
+                .zip(&self.scale)
+                .zip(&self.weights)
+                .map(|(((name, m), s), w)| {
+                    let k = FEATURES
+                        .iter()
+                        .position(|x| x == name)
+                        .expect("validated names");
+                    w * (f[k] - m) / s
+                })
+                .sum::<f64>();
+        1.0 / (1.0 + (-z).exp())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ranker(features: &[&str], weights: &[f64], bias: f64) -> Ranker {
+        Ranker {
+            format: RANKER_FORMAT,
+            category: "chair".into(),
+            features: features.iter().map(|s| s.to_string()).collect(),
+            mean: vec![0.5; features.len()],
+            scale: vec![2.0; features.len()],
+            weights: weights.to_vec(),
+            bias,
+            fitted_on: String::new(),
+        }
+    }
+
+    #[test]
+    fn probability_is_the_logistic_of_the_standardised_features() {
+        let r = ranker(&["agree", "depth"], &[3.0, -1.0], 0.25);
+        let mut f = [0.0; FEATURES.len()];
+        f[1] = 0.9; // agree
+        f[13] = 2.5; // depth
+        let z: f64 = 0.25 + 3.0 * (0.9 - 0.5) / 2.0 - (2.5 - 0.5) / 2.0;
+        assert!((r.probability(&f) - 1.0 / (1.0 + (-z).exp())).abs() < 1e-15);
+        // More agreement, surer; the unused features change nothing.
+        let mut g = f;
+        g[1] = 1.0;
+        g[0] = 123.0;
+        assert!(r.probability(&g) > r.probability(&f));
+    }
+
+    #[test]
+    fn features_are_fractions_of_the_visible_cells() {
+        let d = Detection {
+            category: "chair".into(),
+            r: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            t: [0.0, 0.0, 3.0],
+            size: [0.5, 0.6, 0.9],
+            box_centre: [0.0; 3],
+            score: 0.0,
+            support: 9,
+            forest_score: 0.5,
+            rank: 2,
+            tilt_deg: 4.0,
+            shape: Some(0),
+            refined: true,
+            turn: 0,
+            features: None,
+        };
+        let v = Verification {
+            score: 0.4,
+            agree: 60,
+            violate: 10,
+            occluded: 20,
+            missing: 7,
+            outside: 10,
+            unexplained: 5,
+        };
+        let f = features(&d, &v, [1.0, 0.5, 2.0]);
+        let expect = [
+            0.4,
+            0.6,
+            0.1,
+            0.2,
+            0.1,
+            0.07,
+            0.05,
+            61f64.ln(),
+            0.5f64.ln(),
+            10f64.ln(),
+            2.0,
+            4.0,
+            1.0,
+            3.0,
+            2f64.ln(),
+            0.9,
+            0.6,
+        ];
+        for (k, (a, b)) in f.iter().zip(expect).enumerate() {
+            assert!((a - b).abs() < 1e-12, "{}: {a} vs {b}", FEATURES[k]);
+        }
+    }
+
+    #[test]
+    fn bad_rankers_are_refused_naming_the_source() {
+        let ok = ranker(&["agree"], &[1.0], 0.0);
+        assert_eq!(Ranker::from_json(&ok.to_json(), "x").unwrap(), ok);
+        for (r, needle) in [
+            (ranker(&["agree"], &[1.0, 2.0], 0.0), "2 weights"),
+            (ranker(&["agreement"], &[1.0], 0.0), "unknown feature"),
+            (ranker(&["agree"], &[1.0], 0.0), "scales positive"),
+            (
+                Ranker {
+                    format: 9,
+                    ..ok.clone()
+                },
+                "format 9",
+            ),
+        ] {
+            let mut r = r;
+            if needle == "scales positive" {
+                r.scale = vec![0.0];
+            }
+            let text = serde_json::to_string(&r).unwrap();
+            let e = Ranker::from_json(&text, "m.ranker.json")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("m.ranker.json") && e.contains(needle), "{e}");
+        }
+        let e = Ranker::from_json("{}", "m.ranker.json")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("m.ranker.json: not a ranker"), "{e}");
+    }
+}

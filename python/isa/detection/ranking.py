@@ -1,0 +1,176 @@
+"""Ranking: each detection's score as the probability that it is a true object.
+
+The verification score alone ranks a panel that agrees with any box face (a chair seen from
+behind, a cabinet under a table hypothesis) above a half-hidden real object. The counts it is
+made of, the forest's score, the size fit and the pose tell them apart better. A
+:class:`Ranker` is a logistic model of one category over those features
+(``isa._core.RANK_FEATURES``; ``isa_core::scene::ranking``), applied by the core to the
+detections NMS keeps. It is fitted on *validation* rooms (scenes made from train-split meshes,
+``python -m isa scenes make``), never on test rooms:
+
+    python -m isa.detection.ranking --scenes VAL --model chair=chair.isa ... --shapes SHAPES -o DIR
+
+writes ``DIR/<category>.ranker.json``; :func:`isa.detection.multi.load_model` reads
+``<model>.ranker.json`` beside a model (or ``ranker=``). Give every category a ranker or none:
+a probability and a verification score do not rank together.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import minimize
+from tqdm import tqdm
+
+from isa import _core, atomic
+from isa.exceptions import DataError, InvalidValueError
+
+__all__ = ["Ranker", "fit_ranker", "FEATURES"]
+
+FEATURES: tuple[str, ...] = tuple(_core.RANK_FEATURES)
+
+
+@dataclass(frozen=True)
+class Ranker:
+    """``P(true) = 1 / (1 + exp(-(bias + sum_i weights_i (f_i - mean_i) / scale_i)))`` over the
+    named ``features`` of a ``category``'s detections; ``fitted_on`` says on what."""
+
+    category: str
+    features: tuple[str, ...]
+    mean: tuple[float, ...]
+    scale: tuple[float, ...]
+    weights: tuple[float, ...]
+    bias: float
+    fitted_on: str = ""
+
+    def to_json(self) -> str:
+        """The JSON the core reads (checked by it)."""
+        doc = {"format": _core.RANKER_FORMAT, "category": self.category, "features": list(self.features),
+               "mean": list(self.mean), "scale": list(self.scale), "weights": list(self.weights),
+               "bias": self.bias, "fitted_on": self.fitted_on}
+        return _core.check_ranker(json.dumps(doc), f"ranker of {self.category!r}")
+
+    @classmethod
+    def from_json(cls, text: str, source: str = "ranker") -> "Ranker":
+        d = json.loads(_core.check_ranker(text, source))
+        return cls(d["category"], tuple(d["features"]), tuple(d["mean"]), tuple(d["scale"]), tuple(d["weights"]),
+                   float(d["bias"]), d.get("fitted_on", ""))
+
+    def save(self, path: str | Path) -> None:
+        atomic.write_text(Path(path), self.to_json())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Ranker":
+        path = Path(path)
+        if not path.is_file():
+            raise DataError(f"{path}: ranker file not found")
+        return cls.from_json(path.read_text(), str(path))
+
+    def probability(self, features: dict[str, float]) -> float:
+        """What the core computes, from a detection's ``meta["features"]``."""
+        z = self.bias + sum(w * (features[f] - m) / s
+                            for f, m, s, w in zip(self.features, self.mean, self.scale, self.weights))
+        return float(1.0 / (1.0 + np.exp(-z)))
+
+
+def fit_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: Sequence[str] = FEATURES,
+               c: float = 1.0, fitted_on: str = "") -> Ranker:
+    """A logistic model of ``labels`` (bool, True: a true object) from ``features`` (N, F),
+    columns named ``names``; standardised, L2-regularised (``c`` the inverse strength, as
+    scikit-learn's ``C``), fitted by L-BFGS."""
+    X = np.asarray(features, dtype=float)
+    y = np.asarray(labels, dtype=bool)
+    if X.ndim != 2 or X.shape[1] != len(names) or len(X) != len(y):
+        raise InvalidValueError(f"fit_ranker: features {X.shape} for {len(y)} labels and {len(names)} names")
+    if y.all() or not y.any():
+        raise InvalidValueError(f"fit_ranker({category!r}): needs true and false detections, "
+                                f"got {int(y.sum())} true of {len(y)}")
+    mean = X.mean(0)
+    scale = X.std(0)
+    scale[scale < 1e-9] = 1.0  # a constant feature: its weight goes to 0 under the penalty
+    Z = (X - mean) / scale
+    s = np.where(y, 1.0, -1.0)
+
+    def loss(wb):
+        w, b = wb[:-1], wb[-1]
+        m = s * (Z @ w + b)
+        # log(1 + exp(-m)) and its gradient, stable for any margin.
+        value = c * np.logaddexp(0.0, -m).sum() + 0.5 * w @ w
+        g = -c * s / (1.0 + np.exp(m))
+        return value, np.append(Z.T @ g + w, g.sum())
+
+    res = minimize(loss, np.zeros(X.shape[1] + 1), jac=True, method="L-BFGS-B")
+    w, b = res.x[:-1], res.x[-1]
+    return Ranker(category, tuple(names), tuple(mean.tolist()), tuple(scale.tolist()), tuple(w.tolist()), float(b),
+                  fitted_on)
+
+
+def detection_outcomes(views, models, progress: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per category, the features (N, F) of every detection the models (rankers dropped) make in
+    ``views`` (:class:`isa.scenes.benchmark.View`) and whether each is a true object (box IoU
+    0.25, :func:`isa.scenes.scoring.evaluate`; detections of objects too hidden to count are left
+    out)."""
+    from isa.detection.multi import detect
+    from isa.scenes.scoring import Detection, evaluate
+
+    use = [replace(m, ranker=None) for m in models]
+    feats, dets = [], []
+    for f in tqdm(views, desc="detect", unit="frame", disable=not progress):
+        res = detect(f.depth, f.intrinsics, use, gravity=f.gravity)
+        feats.append([(d.category, d.meta.get("features")) for d in res.detections])
+        dets.append([Detection(d.category, d.R, d.t, d.size, d.score, d.box_centre) for d in res.detections])
+    cats = [m.category for m in models]
+    sc = evaluate([f.gt for f in views], dets, [f.gravity for f in views], cats)
+    out: dict[str, tuple[list, list]] = {c: ([], []) for c in cats}
+    for fi, frame in enumerate(feats):
+        for i, (cat, fd) in enumerate(frame):
+            kind = sc.outcome[fi][i]["box_0.25"]
+            if fd is None or kind not in ("tp", "fp"):
+                continue
+            out[cat][0].append([fd[n] for n in FEATURES])
+            out[cat][1].append(kind == "tp")
+    return {c: (np.array(x, dtype=float).reshape(-1, len(FEATURES)), np.array(y, dtype=bool))
+            for c, (x, y) in out.items()}
+
+
+def main(argv: list[str] | None = None) -> None:
+    from isa.detection.multi import load_model
+    from isa.scenes.benchmark import scene_views
+
+    p = argparse.ArgumentParser(prog="python -m isa.detection.ranking", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", action="append", required=True, help="validation scene root (repeatable: pooled)")
+    p.add_argument("--split", default="val")
+    p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
+    p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz (default: beside each model)")
+    p.add_argument("-C", type=float, default=0.1, help="inverse L2 strength (default 0.1)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="folder for <category>.ranker.json")
+    a = p.parse_args(argv)
+    if a.split == "test":
+        raise SystemExit("--split test: rankers are fitted on validation rooms, never on test rooms")
+    models = []
+    for item in a.model:
+        cat, sep, path = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--model: expected CATEGORY=PATH, got {item!r}")
+        shapes = a.shapes / f"{cat}.shapes.npz" if a.shapes else None
+        m = load_model(path, shapes=shapes, category=cat)
+        if m.shapes is None:
+            raise SystemExit(f"--model {item}: no shape library (ranking reads verification's counts)")
+        models.append(replace(m, forest=m.forest.with_leaf_weights(None)))
+    views = [v for root in a.scenes for v in scene_views(root, a.split)]
+    where = " + ".join(f"{r}/{a.split}" for r in a.scenes)
+    data = detection_outcomes(views, models)
+    a.out.mkdir(parents=True, exist_ok=True)
+    for cat, (X, y) in data.items():
+        r = fit_ranker(cat, X, y, c=a.C, fitted_on=f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}")
+        r.save(a.out / f"{cat}.ranker.json")
+        print(f"{cat}: {r.fitted_on} -> {a.out / f'{cat}.ranker.json'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,109 @@
+"""Ranking (``isa.detection.ranking``, ``isa_core::scene::ranking``): the logistic fit against its
+own optimality condition, the ranker file's checks, and the core's scores against the Python
+formula on a rendered room."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from isa import _core
+from isa.camera import KINECT_V1
+from isa.detection.ranking import FEATURES, Ranker, fit_ranker
+from isa.exceptions import DataError, IsaError
+from test_detection_scene import _room
+
+
+def test_fit_is_the_penalised_likelihood_optimum():
+    """Labels drawn from a known logistic model: the fit's weights have the true signs, and the
+    objective's gradient (written out here on the raw features) vanishes at them."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(600, 3)) * [1.0, 2.0, 0.5] + [0.0, 1.0, 3.0]
+    y = rng.random(600) < 1 / (1 + np.exp(-(2.0 * X[:, 0] - 1.0 * X[:, 1] + 0.5)))
+    names = ("agree", "violate", "depth")
+    r = fit_ranker("chair", X, y, names, c=1.0)
+    w, mean = np.array(r.weights), np.array(r.mean)
+    assert w[0] > 0 > w[1] and abs(w[2]) < 0.3 * min(abs(w[0]), abs(w[1]))
+    # Objective: sum log(1 + exp(-s (Z w + b))) + |w|^2 / 2, Z the standardised features.
+    Z = (X - X.mean(0)) / X.std(0)
+    s = np.where(y, 1.0, -1.0)
+    m = s * (Z @ w + r.bias)
+    g = -s / (1 + np.exp(m))
+    np.testing.assert_allclose(np.append(Z.T @ g + w, g.sum()), 0.0, atol=1e-3)
+    np.testing.assert_allclose(mean, X.mean(0))
+    # The probability is the logistic of the linear score.
+    p = [r.probability(dict(zip(names, x))) for x in X[:5]]
+    np.testing.assert_allclose(p, 1 / (1 + np.exp(-(Z[:5] @ w + r.bias))), rtol=1e-12)
+
+
+def test_fit_needs_both_outcomes():
+    with pytest.raises(IsaError, match="true and false"):
+        fit_ranker("chair", np.zeros((4, 1)), np.ones(4, bool), ("agree",))
+
+
+def test_ranker_file_roundtrip_and_errors(tmp_path):
+    r = Ranker("chair", ("agree", "log_forest_score"), (0.5, -1.0), (0.2, 1.5), (2.0, 0.3), -1.0, "test")
+    r.save(tmp_path / "chair.ranker.json")
+    assert Ranker.load(tmp_path / "chair.ranker.json") == r
+    with pytest.raises(DataError, match="nothere.ranker.json"):
+        Ranker.load(tmp_path / "nothere.ranker.json")
+    doc = json.loads(r.to_json())
+    for key, value, needle in [("features", ["agree", "agreement"], "unknown feature"),
+                               ("scale", [0.2, 0.0], "scales positive"),
+                               ("weights", [1.0], "2 features"),
+                               ("format", 99, "format 99")]:
+        (tmp_path / "bad.json").write_text(json.dumps(dict(doc, **{key: value})))
+        with pytest.raises(ValueError, match=needle) as e:
+            Ranker.load(tmp_path / "bad.json")
+        assert "bad.json" in str(e.value) and isinstance(e.value, IsaError)
+
+
+@pytest.mark.slow
+def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room():
+    """Two chairs in a rendered room. Without a ranker every detection carries its features, and
+    a refined one (verified with all its shape's points, as ranking does) scores the
+    `verify_score` feature plus the forest term; with a ranker, each score is
+    the ranker's probability of its features (computed here in Python) and the list is sorted by
+    it."""
+    from isa.detection import DetectParams, train_detector
+    from isa.detection.category_boxes import model_box
+    from isa.detection.multi import CategoryModel, detect
+    from isa.detection.shapes import shape_library
+    from isa.forest import ForestParams
+    from isa.render.dataset import procedural_objects
+
+    objs = procedural_objects("chair", 3, seed=7)
+    params = ForestParams(n_trees=2, max_depth=10, n_candidates=20, quality="Q1")
+    forest, prepared = train_detector("chair", objs, views=12, stride=8, use_ground_truth=True, forest_params=params)
+    lib = shape_library("chair", prepared.objects)
+    depth, _, Rg = _room(prepared.objects[1].mesh, 0.3, 0.5, 0.6)
+    model = CategoryModel("chair", forest, model_box(forest), lib)
+    p = DetectParams()
+    plain = detect(depth, KINECT_V1, [model], gravity=Rg, params=p).detections
+    assert len(plain) >= 2 and any(d.meta["refined"] for d in plain)
+    for d in plain:
+        f = d.meta["features"]
+        assert set(f) == set(FEATURES)
+        if d.meta["refined"]:
+            assert d.score == pytest.approx(f["verify_score"] + p.forest_weight * f["log_forest_score"], abs=1e-9)
+        cells = f["agree"] + f["violate"] + f["occluded"] + f["outside"]
+        assert cells == pytest.approx(1.0) and f["log_agree"] > 0
+    ranker = Ranker("chair", ("agree", "violate", "log_support"), (0.5, 0.1, 3.0), (0.2, 0.1, 1.0), (2.0, -1.0, 0.5),
+                    0.1)
+    ranked = detect(depth, KINECT_V1, [CategoryModel("chair", forest, model_box(forest), lib, ranker)], gravity=Rg,
+                    params=p).detections
+    assert len(ranked) == len(plain)
+    for d in ranked:
+        assert d.score == pytest.approx(ranker.probability(d.meta["features"]), rel=1e-12)
+    scores = [d.score for d in ranked]
+    assert scores == sorted(scores, reverse=True)
+    # The same detections (NMS ran before ranking), in the ranker's order.
+    key = lambda d: tuple(np.round(d.t, 9))  # noqa: E731
+    assert sorted(map(key, ranked)) == sorted(map(key, plain))
+    # A ranker passed as its JSON to the core directly, with a bad one refused by name.
+    spec = {"category": "chair", "forest": forest, "size": model.box.size, "ssc_offset": model.box.ssc_offset,
+            "shapes": lib.core, "size_range": lib.size_range, "ranker": '{"format": 1}'}
+    with pytest.raises(IsaError, match=r"models\[0\].ranker"):
+        _core.detect(np.ascontiguousarray(depth, np.float32), KINECT_V1, [spec], Rg, params=p.to_dict())
