@@ -741,6 +741,15 @@ fn detect_errors_name_their_cause() {
         tmp("no_shapes_here").to_str().unwrap(),
     ]);
     expect_exit(&o, 3, &["chair.shapes.isl"]);
+    // Rankers: a folder without the category's, and a file that is not one.
+    let rankers = tmp("rankers_here");
+    std::fs::create_dir_all(&rankers).unwrap();
+    let r = rankers.to_str().unwrap();
+    let o = run(&["--model", &m, "--rankers", r]);
+    expect_exit(&o, 3, &["chair.ranker.json"]);
+    std::fs::write(rankers.join("chair.ranker.json"), r#"{"format": 1}"#).unwrap();
+    let o = run(&["--model", &m, "--rankers", r]);
+    expect_exit(&o, 4, &["chair.ranker.json", "not a ranker"]);
     let params = tmp("detect_params.json");
     std::fs::write(&params, r#"{"verify": {"lateral": -1}}"#).unwrap();
     let o = run(&["--model", &m, "--params", params.to_str().unwrap()]);
