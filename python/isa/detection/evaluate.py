@@ -49,7 +49,7 @@ from tqdm.auto import tqdm
 from isa import atomic
 from isa.exceptions import DataError
 
-__all__ = ["VARIANTS", "variant_params", "run_variant", "found_within", "main"]
+__all__ = ["VARIANTS", "variant_params", "run_variant", "found_within", "models_from_args", "main"]
 
 VARIANTS = ("baseline", "forest", "verify", "refine", "turns2", "turns4", "foreground", "nogravity", "noproposals",
             "noranker")
@@ -136,12 +136,31 @@ def found_within(ground_truth, detections, gravity, category: str, min_visib: fl
     return found, total
 
 
+def models_from_args(specs, shapes: Path | None, foreground: Path | None = None, rankers: Path | None = None) -> list:
+    """The models of ``--model CATEGORY=PATH`` arguments, with ``<category>.shapes.npz``,
+    ``<category>.foreground.npz`` and ``<category>.ranker.json`` from the given folders (else
+    whatever lies beside each model)."""
+    from isa.detection.multi import load_model
+
+    models = []
+    for item in specs:
+        cat, sep, path = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--model: expected CATEGORY=PATH, got {item!r}")
+        fg = foreground / f"{cat}.foreground.npz" if foreground else None
+        if fg is not None and not fg.is_file():
+            print(f"{cat}: no {fg.name} in {foreground}, its votes are not weighted")
+            fg = None
+        models.append(load_model(path, shapes=shapes / f"{cat}.shapes.npz" if shapes else None, category=cat,
+                                 foreground=fg, ranker=rankers / f"{cat}.ranker.json" if rankers else None))
+    return models
+
+
 def _pct(v) -> float | None:
     return None if v is None or math.isnan(v) else round(100.0 * v, 1)
 
 
 def main(argv: list[str] | None = None) -> None:
-    from isa.detection.multi import load_model
     from isa.scenes.benchmark import scene_views, sun_views
     from isa.scenes.scoring import evaluate
 
@@ -160,18 +179,7 @@ def main(argv: list[str] | None = None) -> None:
     a = p.parse_args(argv)
     for v in a.variants:
         variant_params(v)  # fail before any work on a misspelt variant
-    models = []
-    for item in a.model:
-        cat, sep, path = item.partition("=")
-        if not sep:
-            raise SystemExit(f"--model: expected CATEGORY=PATH, got {item!r}")
-        shapes = a.shapes / f"{cat}.shapes.npz" if a.shapes else None
-        fg = a.foreground / f"{cat}.foreground.npz" if a.foreground else None
-        if fg is not None and not fg.is_file():
-            print(f"{cat}: no {fg.name} in {a.foreground}, its votes are not weighted")
-            fg = None
-        rk = a.rankers / f"{cat}.ranker.json" if a.rankers else None
-        models.append(load_model(path, shapes=shapes, category=cat, foreground=fg, ranker=rk))
+    models = models_from_args(a.model, a.shapes, a.foreground, a.rankers)
     cats = [m.category for m in models]
     if bool(a.scenes) == bool(a.sun):
         raise SystemExit("give one of --scenes ROOT or --sun DIR")

@@ -139,7 +139,7 @@ def detection_outcomes(views, models, progress: bool = True) -> dict[str, tuple[
 
 
 def main(argv: list[str] | None = None) -> None:
-    from isa.detection.multi import load_model
+    from isa.detection.evaluate import models_from_args
     from isa.scenes.benchmark import scene_views
 
     p = argparse.ArgumentParser(prog="python -m isa.detection.ranking", description=__doc__.split("\n\n")[0])
@@ -153,14 +153,10 @@ def main(argv: list[str] | None = None) -> None:
     if a.split == "test":
         raise SystemExit("--split test: rankers are fitted on validation rooms, never on test rooms")
     models = []
-    for item in a.model:
-        cat, sep, path = item.partition("=")
-        if not sep:
-            raise SystemExit(f"--model: expected CATEGORY=PATH, got {item!r}")
-        shapes = a.shapes / f"{cat}.shapes.npz" if a.shapes else None
-        m = load_model(path, shapes=shapes, category=cat)
+    for item, m in zip(a.model, models_from_args(a.model, a.shapes)):
         if m.shapes is None:
             raise SystemExit(f"--model {item}: no shape library (ranking reads verification's counts)")
+        # As the evaluation's variants: votes unweighted.
         models.append(replace(m, forest=m.forest.with_leaf_weights(None)))
     views = [v for root in a.scenes for v in scene_views(root, a.split)]
     where = " + ".join(f"{r}/{a.split}" for r in a.scenes)
