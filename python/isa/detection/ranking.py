@@ -151,11 +151,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for <category>.ranker.json")
     a = p.parse_args(argv)
     if a.split == "test":
-        raise SystemExit("--split test: rankers are fitted on validation rooms, never on test rooms")
+        p.error("--split test: rankers are fitted on validation rooms, never on test rooms")
     models = []
     for item, m in zip(a.model, models_from_args(a.model, a.shapes)):
         if m.shapes is None:
-            raise SystemExit(f"--model {item}: no shape library (ranking reads verification's counts)")
+            raise DataError(f"--model {item}: no shape library (ranking reads verification's counts)")
         # As the evaluation's variants: votes unweighted.
         models.append(replace(m, forest=m.forest.with_leaf_weights(None)))
     views = [v for root in a.scenes for v in scene_views(root, a.split)]
