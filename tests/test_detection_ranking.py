@@ -102,6 +102,20 @@ def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room():
     # The same detections (NMS ran before ranking), in the ranker's order.
     key = lambda d: tuple(np.round(d.t, 9))  # noqa: E731
     assert sorted(map(key, ranked)) == sorted(map(key, plain))
+    # Ranked before NMS: every candidate scored by the ranker, then suppressed; what stays is
+    # still the ranker's probability of its features, best first, and no two kept boxes
+    # overlap beyond the NMS threshold.
+    from dataclasses import replace
+
+    from isa.evaluation.boxes3d import iou_3d
+
+    pre = detect(depth, KINECT_V1, [CategoryModel("chair", forest, model_box(forest), lib, ranker)], gravity=Rg,
+                 params=replace(p, rank_before_nms=True)).detections
+    assert pre and [d.score for d in pre] == sorted((d.score for d in pre), reverse=True)
+    for d in pre:
+        assert d.score == pytest.approx(ranker.probability(d.meta["features"]), rel=1e-12)
+    boxes = [d.box(Rg) for d in pre]
+    assert all(iou_3d(a, b) <= p.nms_iou + 1e-9 for i, a in enumerate(boxes) for b in boxes[i + 1:])
     # A ranker passed as its JSON to the core directly, with a bad one refused by name.
     spec = {"category": "chair", "forest": forest, "size": model.box.size, "ssc_offset": model.box.ssc_offset,
             "shapes": lib.core, "size_range": lib.size_range, "ranker": '{"format": 1}'}

@@ -117,7 +117,9 @@ class DetectParams:
     ``turns`` > 1 also verifies each hypothesis turned by multiples of 360 / ``turns`` degrees
     about gravity (the forest's front and back are the easiest to confuse) and keeps the best;
     ``nms_iou`` / ``nms_overlap`` the cross-category suppression; ``max_detections`` per frame;
-    ``min_score`` drops weaker ones (None: none); ``predict`` further voting keywords.
+    ``min_score`` drops weaker ones (None: none); ``rank_before_nms`` ranks every candidate
+    before NMS (the rankers' probabilities decide overlaps) instead of the kept detections
+    only; ``predict`` further voting keywords.
     Defaults: the core's (``isa._core.DETECT_DEFAULTS``)."""
 
     stride: int = _D["stride"]
@@ -139,6 +141,7 @@ class DetectParams:
     nms_iou: float = _D["nms_iou"]
     nms_overlap: float = _D["nms_overlap"]
     max_detections: int = _D["max_detections"]
+    rank_before_nms: bool = _D["rank_before_nms"]
     min_score: float | None = _D["min_score"]
     predict: dict = field(default_factory=dict)
 

@@ -292,6 +292,10 @@ pub struct DetectParams {
     pub nms_overlap: f64,
     /// Detections per frame at most. Default 20.
     pub max_detections: usize,
+    /// Every candidate ranked (features and, with a ranker, its probability) before NMS, so
+    /// that the probability decides overlaps; else only the detections NMS keeps. Default
+    /// false.
+    pub rank_before_nms: bool,
     /// Weaker detections are dropped; None: none. Default None.
     pub min_score: Option<f64>,
     /// Further inference parameters for every forest's voting (flat keys, as `predict`'s).
@@ -320,6 +324,7 @@ impl Default for DetectParams {
             nms_iou: 0.25,
             nms_overlap: 0.6,
             max_detections: 20,
+            rank_before_nms: false,
             min_score: None,
             predict: Default::default(),
         }

@@ -638,15 +638,34 @@ pub fn detect(
             owner.push((c.scale, mi));
         }
     }
-    let boxes: Vec<UprightBox> = dets.iter().map(|d| upright_box(d, &rg)).collect();
-    let mut keep = nms_across(&boxes, p.nms_iou, p.nms_overlap);
-    keep.truncate(p.max_detections);
-    lap("nms", &mut secs);
-    let detections = match &p.verify {
-        Some(vp) => rank(&dets, &owner, &keep, models, &sc, vp),
-        None => keep.into_iter().map(|i| dets[i].clone()).collect(),
+    let nms = |dets: &[Detection]| {
+        let boxes: Vec<UprightBox> = dets.iter().map(|d| upright_box(d, &rg)).collect();
+        let mut keep = nms_across(&boxes, p.nms_iou, p.nms_overlap);
+        keep.truncate(p.max_detections);
+        keep
     };
-    lap("rank", &mut secs);
+    let detections = match &p.verify {
+        Some(vp) if p.rank_before_nms => {
+            let all: Vec<usize> = (0..dets.len()).collect();
+            let ranked = rank(&dets, &owner, &all, models, &sc, vp);
+            lap("rank", &mut secs);
+            let keep = nms(&ranked);
+            lap("nms", &mut secs);
+            keep.into_iter().map(|i| ranked[i].clone()).collect()
+        }
+        Some(vp) => {
+            let keep = nms(&dets);
+            lap("nms", &mut secs);
+            let ranked = rank(&dets, &owner, &keep, models, &sc, vp);
+            lap("rank", &mut secs);
+            ranked
+        }
+        None => {
+            let keep = nms(&dets);
+            lap("nms", &mut secs);
+            keep.into_iter().map(|i| dets[i].clone()).collect()
+        }
+    };
     Ok(DetectOutput {
         detections,
         gravity: rg,
