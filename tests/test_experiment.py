@@ -64,3 +64,24 @@ def test_canonical_labels_and_the_symmetry_ceiling_reach_results_json(tmp_path):
     assert set(cat["symmetry"]["orders"].values()) <= {2, 4}
     assert 0.0 < cat["symmetry"]["ceiling_at_0.1"] <= 50.0
     assert "Ceiling: any estimator blind to symmetry" in (out / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_scene_section_runs_the_baseline_and_the_detector(tmp_path):
+    """With --scenes the report holds the one-class baseline and the detector on the same rooms;
+    each model gets its shape library beside it, and rankers are written for every category or
+    for none."""
+    out = tmp_path / "run"
+    experiment.main(["--procedural", "--out", str(out), "--categories", "chair", "--train-instances", "2",
+                     "--test-instances", "1", "--views", "6", "--test-images", "2", "--qualities", "Q1",
+                     "--trees", "2", "--depth", "6", "--candidates", "8", "--stride", "8", "--no-linemod",
+                     "--scenes", "2"])
+    scenes = json.loads((out / "results.json").read_text())["scenes"]
+    base, full = scenes["procedural rooms, one-class baseline"], scenes["procedural rooms, detector"]
+    assert base["n_frames"] == full["n_frames"] == 4 and base["source"] == full["source"]
+    assert "verify" in full["params"] and "verify" not in base["params"]
+    assert (out / "models" / "chair-Q1.shapes.isl").is_file()
+    ranker = (out / "models" / "chair-Q1.ranker.json").is_file()
+    assert ("ranker: yes" in full["models"]["chair"]) == ranker
+    text = (out / "report.md").read_text()
+    assert "## Scenes: procedural rooms, one-class baseline" in text and "## Scenes: procedural rooms, detector" in text

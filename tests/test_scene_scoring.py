@@ -292,3 +292,36 @@ def test_benchmark_command_end_to_end(tiny_bench):
     best = json.loads((tmp / "perfect" / "results.json").read_text())["scenes"]["rooms"]["scores"]["per_category"]
     for m in ("6d", "6d_sym", "box_0.25", "box_0.5"):
         assert best["chair"][m]["ap"] == pytest.approx(100.0), m
+
+
+@pytest.mark.slow
+def test_benchmark_command_runs_the_full_detector(tiny_bench):
+    """`run --detector full` reads the shape library beside the model and stores exactly what
+    `isa.detection.detect` gives on each view (gravity given)."""
+    import json
+
+    from isa.detection.multi import detect, load_model
+    from isa.detection.shapes import shape_library
+    from isa.render.dataset import procedural_objects
+    from isa.scenes.__main__ import main
+    from isa.scenes.benchmark import load_detections, scene_views
+
+    tmp, root, model = tiny_bench
+    full = tmp / "full"
+    full.mkdir()
+    m = full / "chair.isa"
+    m.write_bytes(model.read_bytes())
+    shape_library("chair", procedural_objects("chair", 2, seed=1)).save(m.with_suffix(".shapes.isl"))
+    out = tmp / "out-full"
+    main(["run", "--models", f"chair={m}", "--scenes", str(root), "--split", "test", "--out", str(out),
+          "--figures", "0", "--detector", "full"])
+    sc = json.loads((out / "results.json").read_text())["scenes"]["rooms"]
+    assert "shapes: yes" in sc["models"]["chair"] and "verify" in sc["params"]
+    stored = load_detections(out / "detections.json")["rooms"]["detections"]
+    assert any(stored)
+    cm = load_model(m, category="chair")
+    for v, dets in zip(scene_views(root, "test"), stored, strict=True):
+        direct = detect(v.depth, v.intrinsics, [cm], gravity=v.gravity).detections
+        assert [d.score for d in dets] == pytest.approx([d.score for d in direct], abs=1e-9)
+        for a, b in zip(dets, direct):
+            np.testing.assert_allclose(a.t, b.t, atol=1e-9)

@@ -39,12 +39,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from isa import atomic
 from isa.exceptions import DataError
@@ -92,9 +90,7 @@ def variant_params(name: str):
 def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:
     """Detections (as :class:`isa.scenes.scoring.Detection`) of every view
     (:class:`isa.scenes.benchmark.View`) and the seconds per view."""
-    from isa.detection.multi import detect
-    from isa.scenes.benchmark import detect_views
-    from isa.scenes.scoring import Detection
+    from isa.scenes.benchmark import detect_views, detect_views_full
 
     if name == "baseline":
         return detect_views({m.category: m.forest for m in models}, views, progress=progress, desc=name)
@@ -105,13 +101,9 @@ def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[l
         use = [replace(m, shapes=None, ranker=None) for m in use]
     if name == "noranker":
         use = [replace(m, ranker=None) for m in use]
-    out, secs = [], []
-    for f in tqdm(views, desc=name, unit="frame", disable=not progress):
-        t0 = time.perf_counter()
-        res = detect(f.depth, f.intrinsics, use, gravity=None if name == "nogravity" else f.gravity, params=params)
-        secs.append(time.perf_counter() - t0)
-        out.append([Detection(d.category, d.R, d.t, d.size, d.score, d.box_centre) for d in res.detections])
-    return out, secs
+    if name == "nogravity":
+        views = [replace(v, gravity=None) for v in views]
+    return detect_views_full(use, views, params, progress, desc=name)
 
 
 def found_within(ground_truth, detections, gravity, category: str, min_visib: float = 0.5, max_dist: float = 0.10,

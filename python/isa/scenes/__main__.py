@@ -35,8 +35,10 @@ def parse_models(text: str) -> dict[str, str]:
 
 def _detection_params(a):
     from isa.detection.hypotheses import DetectionParams
+    from isa.detection.multi import DetectParams
 
-    return DetectionParams(stride=a.stride, max_hypotheses=a.hypotheses)
+    cls = DetectParams if a.detector == "full" else DetectionParams
+    return cls(stride=a.stride, max_hypotheses=a.hypotheses)
 
 
 def _write(report, a, t0: float, title_kind: str) -> Path:
@@ -109,12 +111,15 @@ def cmd_run(a) -> None:
     if not datasets:
         raise SystemExit("run: give --scenes ROOT (repeatable) and/or --sun DIR")
     # Models and frames are read before anything is written, so a bad argument leaves no output.
-    forests, _ = load_models(parse_models(a.models))
+    paths = parse_models(a.models)
+    forests, _ = load_models(paths)
     for d in datasets.values():
         d["views"] = dataset_views(d["kind"], d["source"], d.get("split"), d.get("limit"))
     out = Path(a.out)
     report = Report(out, a.title)
-    stored = run_datasets(report, datasets, forests, _detection_params(a), a.min_visib, a.figures)
+    # The detector reads each model's shape library and ranker from beside its file.
+    models = paths if a.detector == "full" else forests
+    stored = run_datasets(report, datasets, models, _detection_params(a), a.min_visib, a.figures, detector=a.detector)
     save_detections(out / "detections.json", stored)
     path = _write(report, a, t0, "run")
     _print_summary(report.results["scenes"])
@@ -169,6 +174,10 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--stride", type=int, default=DetectionParams.stride, help="voting stride in pixels")
     run.add_argument("--hypotheses", type=int, default=DetectionParams.max_hypotheses,
                      help="hypotheses per model and frame")
+    run.add_argument("--detector", choices=("baseline", "full"), default="baseline",
+                     help="baseline: the one-class detection per category (default); full: isa.detection.detect "
+                          "(every category in one pass, verification against <model>.shapes.isl, proposals, "
+                          "refinement, NMS, <model>.ranker.json when present)")
     common(run)
     run.set_defaults(func=cmd_run)
 

@@ -23,7 +23,7 @@ import math
 import os
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -146,6 +146,23 @@ def detect_views(models: Mapping[str, Any], views: Sequence[View], params=None, 
         per_cat = detect_frame(forests, SimpleNamespace(depth=v.depth, intrinsics=v.intrinsics, R_gravity=grav), params)
         secs.append(time.perf_counter() - t0)
         out.append([Detection.from_box(b, grav, -boxes[c].ssc_offset) for c, d in per_cat.items() for b in d.boxes])
+    return out, secs
+
+
+def detect_views_full(models: Sequence[Any], views: Sequence[View], params=None, progress: bool = True,
+                      desc: str = "detect") -> tuple[list[list[Detection]], list[float]]:
+    """The full detector (:func:`isa.detection.multi.detect`: every category in one pass,
+    verification, proposals, refinement, NMS, ranking) on every view, with the view's gravity:
+    per view its detections and the seconds taken. ``models``: :class:`isa.detection.multi.CategoryModel`."""
+    from isa.detection.multi import DetectParams, detect
+
+    params = params or DetectParams()
+    out, secs = [], []
+    for v in tqdm(views, desc=desc, unit="frame", disable=not progress):
+        t0 = time.perf_counter()
+        res = detect(v.depth, v.intrinsics, models, gravity=v.gravity, params=params)
+        secs.append(time.perf_counter() - t0)
+        out.append([Detection(d.category, d.R, d.t, d.size, d.score, d.box_centre) for d in res.detections])
     return out, secs
 
 
@@ -277,19 +294,38 @@ def dataset_views(kind: str, source: str | os.PathLike, split: str | None = None
 
 def run_datasets(report, datasets: Mapping[str, Mapping[str, Any]], models: Mapping[str, Any], params=None,
                  min_visib: float | None = None, n_figures: int = 3, progress: bool = True,
-                 heading_level: int = 2) -> dict[str, dict[str, Any]]:
+                 heading_level: int = 2, detector: str = "baseline") -> dict[str, dict[str, Any]]:
     """Detect, score and report every dataset. ``datasets``: name -> {"kind", "source", "split",
-    optional "limit", "description", "views" (already read)}; ``models``: category -> model path or Forest. Returns what
-    :func:`save_detections` stores (name -> the dataset's entry with its frames and detections)."""
+    optional "limit", "description", "views" (already read)}; ``models``: category -> model path or Forest.
+    ``detector``: "baseline" (the one-class detection, :func:`detect_views`) or "full"
+    (:func:`detect_views_full`; each model's shape library and ranker are read from beside its
+    file, :func:`isa.detection.multi.load_model`). Returns what :func:`save_detections` stores
+    (name -> the dataset's entry with its frames and detections)."""
+    from isa.detection.category_boxes import model_box
     from isa.detection.hypotheses import DetectionParams
+    from isa.detection.multi import CategoryModel, DetectParams, load_model
 
-    params = params or DetectionParams()
+    if detector not in ("baseline", "full"):
+        raise DataError(f"detector must be 'baseline' or 'full', got {detector!r}")
     forests, sources = load_models(models)
+    if detector == "full":
+        params = params or DetectParams()
+        full = [load_model(models[c], category=c) if isinstance(models[c], (str, os.PathLike))
+                else CategoryModel(c, f, model_box(f)) for c, f in forests.items()]
+        # As the evaluation's variants: votes unweighted.
+        full = [replace(m, forest=m.forest.with_leaf_weights(None)) for m in full]
+        sources = {m.category: f"{sources[m.category]} (shapes: {'yes' if m.shapes else 'none'}, "
+                               f"ranker: {'yes' if m.ranker else 'none'})" for m in full}
+    else:
+        params = params or DetectionParams()
     stored = {}
     for name, d in datasets.items():
         views = d.get("views") or dataset_views(d["kind"], d["source"], d.get("split"), d.get("limit"))
         t0 = time.perf_counter()
-        dets, secs = detect_views(forests, views, params, progress, desc=f"detect {name}")
+        if detector == "full":
+            dets, secs = detect_views_full(full, views, params, progress, desc=f"detect {name}")
+        else:
+            dets, secs = detect_views(forests, views, params, progress, desc=f"detect {name}")
         seconds = time.perf_counter() - t0
         scores = score_views(views, dets, list(forests), min_visib)
         entry = {"kind": d["kind"], "source": str(d["source"]), "split": d.get("split"), "models": sources,
