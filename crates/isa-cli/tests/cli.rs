@@ -744,6 +744,7 @@ fn detect_errors_name_their_cause() {
     // Rankers: a folder without the category's, and a file that is not one.
     let rankers = tmp("rankers_here");
     std::fs::create_dir_all(&rankers).unwrap();
+    let _ = std::fs::remove_file(rankers.join("chair.ranker.json")); // an earlier run's
     let r = rankers.to_str().unwrap();
     let o = run(&["--model", &m, "--rankers", r]);
     expect_exit(&o, 3, &["chair.ranker.json"]);
