@@ -117,7 +117,7 @@ class DetectParams:
     ``turns`` > 1 also verifies each hypothesis turned by multiples of 360 / ``turns`` degrees
     about gravity (the forest's front and back are the easiest to confuse) and keeps the best;
     ``nms_iou`` / ``nms_overlap`` the cross-category suppression; ``max_detections`` per frame;
-    ``min_score`` drops weaker ones (None: none); ``rank_before_nms`` ranks every candidate
+    ``min_score`` drops those with a weaker verified score, before ranking (None: none); ``rank_before_nms`` ranks every candidate
     before NMS (the rankers' probabilities decide overlaps) instead of the kept detections
     only; ``predict`` further voting keywords.
     Defaults: the core's (``isa._core.DETECT_DEFAULTS``)."""

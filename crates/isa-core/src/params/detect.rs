@@ -296,7 +296,8 @@ pub struct DetectParams {
     /// that the probability decides overlaps; else only the detections NMS keeps. Default
     /// false.
     pub rank_before_nms: bool,
-    /// Weaker detections are dropped; None: none. Default None.
+    /// Detections whose verified score (before ranking) is weaker are dropped; None: none.
+    /// Default None.
     pub min_score: Option<f64>,
     /// Further inference parameters for every forest's voting (flat keys, as `predict`'s).
     pub predict: serde_json::Map<String, Value>,

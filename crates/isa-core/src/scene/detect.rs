@@ -1,9 +1,9 @@
 //! Every category in one pass (as `isa.detection.multi.detect`): gravity, planes, each forest's
 //! votes on the cleaned depth, hypotheses snapped upright and set on the floor, verification
 //! against each category's shapes with a size fit, refinement of the best, the forest's score
-//! as a small term, NMS across categories. Categories and hypotheses run in parallel (rayon);
-//! results do not depend on the thread count. Footprint proposals ([`super::proposals`]) join
-//! the forests' hypotheses before verification.
+//! as a small term, NMS across categories, ranking ([`super::ranking`]). Categories and
+//! hypotheses run in parallel (rayon); results do not depend on the thread count. Footprint
+//! proposals ([`super::proposals`]) join the forests' hypotheses before verification.
 //!
 //! (Over 600 lines: the steps here share the private hypothesis-in-flight `Cand` and the
 //! frame's `Scene`; the geometry of each stage lives in its own module.)
@@ -96,8 +96,8 @@ pub struct Detection {
     pub shape: Option<usize>,
     pub refined: bool,
     pub turn: usize,
-    /// What ranking reads ([`super::ranking::FEATURES`]), for detections kept by NMS of
-    /// verified models.
+    /// What ranking reads ([`super::ranking::FEATURES`]), for the detections of verified
+    /// models that ranking saw (those NMS keeps, or all with `rank_before_nms`).
     pub features: Option<[f64; FEATURES.len()]>,
 }
 
