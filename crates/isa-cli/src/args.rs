@@ -389,6 +389,9 @@ pub struct DetectFlags {
     pub refine_top: Option<usize>,
     #[arg(long, help = dflt("Cross-category NMS: IoU above which a box goes", dp().nms_iou))]
     pub nms_iou: Option<f64>,
-    #[arg(long, help = "Drop detections scoring below this [default: none]")]
+    #[arg(
+        long,
+        help = "Drop detections whose verified score (before ranking) is below this [default: none]"
+    )]
     pub min_score: Option<f64>,
 }
