@@ -5,7 +5,8 @@ behind, a cabinet under a table hypothesis) above a half-hidden real object. The
 made of, the forest's score, the size fit and the pose tell them apart better. A
 :class:`Ranker` is a logistic model of one category over those features
 (``isa._core.RANK_FEATURES``; ``isa_core::scene::ranking``), applied by the core to the
-detections NMS keeps. It is fitted on *validation* rooms (scenes made from train-split meshes,
+detections NMS keeps; a boosted ranker (:func:`fit_boosted_ranker`, scikit-learn's gradient
+boosting) adds regression trees to its log-odds. It is fitted on *validation* rooms (scenes made from train-split meshes,
 ``python -m isa scenes make``), never on test rooms:
 
     python -m isa.detection.ranking --scenes VAL --model chair=chair.isa ... --shapes SHAPES -o DIR
@@ -30,15 +31,21 @@ from tqdm import tqdm
 from isa import _core, atomic
 from isa.exceptions import DataError, InvalidValueError
 
-__all__ = ["Ranker", "fit_ranker", "FEATURES"]
+__all__ = ["Ranker", "fit_ranker", "fit_boosted_ranker", "FEATURES"]
 
 FEATURES: tuple[str, ...] = tuple(_core.RANK_FEATURES)
 
 
+_TREE_KEYS = ("feature", "threshold", "left", "right", "value")
+
+
 @dataclass(frozen=True)
 class Ranker:
-    """``P(true) = 1 / (1 + exp(-(bias + sum_i weights_i (f_i - mean_i) / scale_i)))`` over the
-    named ``features`` of a ``category``'s detections; ``fitted_on`` says on what."""
+    """``P(true) = 1 / (1 + exp(-(bias + sum_i weights_i (f_i - mean_i) / scale_i + sum_t
+    tree_t(f))))`` over the named ``features`` of a ``category``'s detections; ``trees`` (may be
+    empty) are regression trees as flat node arrays (``isa_core::scene::ranking::RankTree``:
+    dicts of ``feature``, ``threshold``, ``left``, ``right``, ``value``); ``fitted_on`` says on
+    what."""
 
     category: str
     features: tuple[str, ...]
@@ -47,19 +54,23 @@ class Ranker:
     weights: tuple[float, ...]
     bias: float
     fitted_on: str = ""
+    trees: tuple[dict, ...] = ()
 
     def to_json(self) -> str:
         """The JSON the core reads (checked by it)."""
         doc = {"format": _core.RANKER_FORMAT, "category": self.category, "features": list(self.features),
                "mean": list(self.mean), "scale": list(self.scale), "weights": list(self.weights),
                "bias": self.bias, "fitted_on": self.fitted_on}
+        if self.trees:
+            doc["trees"] = [{k: list(t[k]) for k in _TREE_KEYS} for t in self.trees]
         return _core.check_ranker(json.dumps(doc), f"ranker of {self.category!r}")
 
     @classmethod
     def from_json(cls, text: str, source: str = "ranker") -> "Ranker":
         d = json.loads(_core.check_ranker(text, source))
+        trees = tuple({k: tuple(t[k]) for k in _TREE_KEYS} for t in d.get("trees", ()))
         return cls(d["category"], tuple(d["features"]), tuple(d["mean"]), tuple(d["scale"]), tuple(d["weights"]),
-                   float(d["bias"]), d.get("fitted_on", ""))
+                   float(d["bias"]), d.get("fitted_on", ""), trees)
 
     def save(self, path: str | Path) -> None:
         atomic.write_text(Path(path), self.to_json())
@@ -73,8 +84,14 @@ class Ranker:
 
     def probability(self, features: dict[str, float]) -> float:
         """What the core computes, from a detection's ``meta["features"]``."""
-        z = self.bias + sum(w * (features[f] - m) / s
-                            for f, m, s, w in zip(self.features, self.mean, self.scale, self.weights))
+        x = [features[f] for f in self.features]
+        z = self.bias + sum(w * (v - m) / s for v, m, s, w in zip(x, self.mean, self.scale, self.weights))
+        for t in self.trees:
+            i = 0
+            while t["feature"][i] >= 0:  # compared in float32, as scikit-learn's trees compare
+                go_left = float(np.float32(x[t["feature"][i]])) <= t["threshold"][i]
+                i = t["left"][i] if go_left else t["right"][i]
+            z += t["value"][i]
         return float(1.0 / (1.0 + np.exp(-z)))
 
 
@@ -85,11 +102,7 @@ def fit_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: S
     scikit-learn's ``C``), fitted by L-BFGS."""
     X = np.asarray(features, dtype=float)
     y = np.asarray(labels, dtype=bool)
-    if X.ndim != 2 or X.shape[1] != len(names) or len(X) != len(y):
-        raise InvalidValueError(f"fit_ranker: features {X.shape} for {len(y)} labels and {len(names)} names")
-    if y.all() or not y.any():
-        raise InvalidValueError(f"fit_ranker({category!r}): needs true and false detections, "
-                                f"got {int(y.sum())} true of {len(y)}")
+    _check_training_set(category, X, y, names)
     mean = X.mean(0)
     scale = X.std(0)
     scale[scale < 1e-9] = 1.0  # a constant feature: its weight goes to 0 under the penalty
@@ -108,6 +121,44 @@ def fit_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: S
     w, b = res.x[:-1], res.x[-1]
     return Ranker(category, tuple(names), tuple(mean.tolist()), tuple(scale.tolist()), tuple(w.tolist()), float(b),
                   fitted_on)
+
+
+def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: Sequence[str] = FEATURES,
+                       n_trees: int = 100, depth: int = 2, learning_rate: float = 0.1, min_leaf: int = 20,
+                       seed: int = 0, fitted_on: str = "") -> Ranker:
+    """A ranker whose log-odds are a sum of ``n_trees`` regression trees of ``depth`` levels
+    (scikit-learn's ``GradientBoostingClassifier``, log-loss; at least ``min_leaf`` detections
+    a leaf), exported as flat node arrays with the learning rate folded into the leaves."""
+    from sklearn.ensemble import GradientBoostingClassifier
+
+    X = np.asarray(features, dtype=float)
+    y = np.asarray(labels, dtype=bool)
+    _check_training_set(category, X, y, names)
+    gb = GradientBoostingClassifier(n_estimators=n_trees, max_depth=depth, learning_rate=learning_rate,
+                                    min_samples_leaf=min_leaf, random_state=seed).fit(X, y)
+    trees = []
+    for est in gb.estimators_[:, 0]:
+        t = est.tree_
+        leaf = t.children_left < 0
+        trees.append({"feature": tuple(np.where(leaf, -1, t.feature).tolist()),
+                      "threshold": tuple(np.where(leaf, 0.0, t.threshold).tolist()),
+                      "left": tuple(np.where(leaf, 0, t.children_left).tolist()),
+                      "right": tuple(np.where(leaf, 0, t.children_right).tolist()),
+                      "value": tuple((learning_rate * t.value[:, 0, 0]).tolist())})
+    # The prior's log-odds, as the fitted model has it (sklearn keeps it in a private method):
+    # its decision function less the trees, on the first training row.
+    x0 = X[:1]
+    bias = float(gb.decision_function(x0)[0] - sum(learning_rate * e.predict(x0)[0] for e in gb.estimators_[:, 0]))
+    n = len(names)
+    return Ranker(category, tuple(names), (0.0,) * n, (1.0,) * n, (0.0,) * n, bias, fitted_on, tuple(trees))
+
+
+def _check_training_set(category: str, X: np.ndarray, y: np.ndarray, names: Sequence[str]) -> None:
+    if X.ndim != 2 or X.shape[1] != len(names) or len(X) != len(y):
+        raise InvalidValueError(f"fit_ranker: features {X.shape} for {len(y)} labels and {len(names)} names")
+    if y.all() or not y.any():
+        raise InvalidValueError(f"fit_ranker({category!r}): needs true and false detections, "
+                                f"got {int(y.sum())} true of {len(y)}")
 
 
 def detection_outcomes(views, models, progress: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -147,7 +198,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--split", default="val")
     p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
     p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz (default: beside each model)")
-    p.add_argument("-C", type=float, default=0.1, help="inverse L2 strength (default 0.1)")
+    p.add_argument("--kind", choices=("logistic", "boosted"), default="logistic",
+                   help="linear log-odds, or boosted regression trees (default logistic)")
+    p.add_argument("-C", type=float, default=0.1, help="logistic: inverse L2 strength (default 0.1)")
+    p.add_argument("--trees", type=int, default=100, help="boosted: number of trees (default 100)")
+    p.add_argument("--depth", type=int, default=2, help="boosted: levels per tree (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="boosted: random seed (default 0)")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for <category>.ranker.json")
     a = p.parse_args(argv)
     if a.split == "test":
@@ -163,7 +219,11 @@ def main(argv: list[str] | None = None) -> None:
     data = detection_outcomes(views, models)
     a.out.mkdir(parents=True, exist_ok=True)
     for cat, (X, y) in data.items():
-        r = fit_ranker(cat, X, y, c=a.C, fitted_on=f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}")
+        on = f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}"
+        if a.kind == "boosted":
+            r = fit_boosted_ranker(cat, X, y, n_trees=a.trees, depth=a.depth, seed=a.seed, fitted_on=on)
+        else:
+            r = fit_ranker(cat, X, y, c=a.C, fitted_on=on)
         r.save(a.out / f"{cat}.ranker.json")
         print(f"{cat}: {r.fitted_on} -> {a.out / f'{cat}.ranker.json'}")
 

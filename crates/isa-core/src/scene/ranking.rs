@@ -1,7 +1,9 @@
 //! Ranking: a detection's score as the probability that it is a true object, from what the
 //! earlier stages measured about it (the verification counts, the forest's word, the size fit,
 //! the pose). A [`Ranker`] is a logistic model per category, fitted on validation rooms
-//! (`isa.detection.ranking`) and stored as JSON beside the model (`<model>.ranker.json`).
+//! (`isa.detection.ranking`) and stored as JSON beside the model (`<model>.ranker.json`): its
+//! log-odds are linear in the standardised features, plus the sum of boosted regression trees
+//! ([`RankTree`], format 2) where a ranker has them.
 //!
 //! Why: the verification score alone ranks a panel that agrees with any box face (a chair seen
 //! from behind, a cabinet under a table hypothesis) above a half-hidden real object; the counts
@@ -14,8 +16,8 @@ use super::verify::Verification;
 use super::Detection;
 use crate::error::{IsaError, Result};
 
-/// The ranker file format this build writes and reads.
-pub const RANKER_FORMAT: u32 = 1;
+/// The ranker file format this build writes. It reads format 1 too (linear only: no trees).
+pub const RANKER_FORMAT: u32 = 2;
 
 /// The features a ranker may use, in the order [`features`] returns them.
 pub const FEATURES: [&str; 17] = [
@@ -67,8 +69,78 @@ pub fn features(d: &Detection, v: &Verification, scale: [f64; 3]) -> [f64; FEATU
     ]
 }
 
+/// One regression tree of a boosted ranker, as flat node arrays (scikit-learn's `tree_` layout).
+/// Node `i` is a leaf when `feature[i] < 0` and then adds `value[i]` to the log-odds; otherwise
+/// a detection goes to `left[i]` when its feature number `feature[i]` (an index into the
+/// ranker's `features`), rounded to `f32` as scikit-learn compares it, is `<= threshold[i]`,
+/// else to `right[i]`. Children stand after their parent, so every walk ends.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RankTree {
+    pub feature: Vec<i32>,
+    pub threshold: Vec<f64>,
+    pub left: Vec<u32>,
+    pub right: Vec<u32>,
+    pub value: Vec<f64>,
+}
+
+impl RankTree {
+    fn check(&self, n_features: usize) -> std::result::Result<(), String> {
+        let n = self.feature.len();
+        if n == 0
+            || [
+                self.threshold.len(),
+                self.left.len(),
+                self.right.len(),
+                self.value.len(),
+            ]
+            .iter()
+            .any(|&k| k != n)
+        {
+            return Err(format!("{n} nodes but arrays of other lengths (or none)"));
+        }
+        for i in 0..n {
+            if self.feature[i] < 0 {
+                if !self.value[i].is_finite() {
+                    return Err(format!("leaf {i}: value not finite"));
+                }
+                continue;
+            }
+            let (l, r) = (self.left[i] as usize, self.right[i] as usize);
+            if self.feature[i] as usize >= n_features
+                || !self.threshold[i].is_finite()
+                || l <= i
+                || r <= i
+                || l >= n
+                || r >= n
+            {
+                return Err(format!(
+                    "node {i}: feature {} of {n_features}, threshold {}, children {l} and {r} of {n} \
+                     (children must stand after their parent)",
+                    self.feature[i], self.threshold[i]
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The leaf value reached by features `x` (in the ranker's `features` order).
+    fn eval(&self, x: &[f64]) -> f64 {
+        let mut i = 0;
+        while self.feature[i] >= 0 {
+            let v = f64::from(x[self.feature[i] as usize] as f32);
+            i = if v <= self.threshold[i] {
+                self.left[i]
+            } else {
+                self.right[i]
+            } as usize;
+        }
+        self.value[i]
+    }
+}
+
 /// A logistic model of one category: `P(true) = 1 / (1 + exp(-(bias + sum_i w_i (f_i - mean_i)
-/// / scale_i)))` over the named features; `fitted_on` says on what (free text).
+/// / scale_i + sum_t tree_t(f))))` over the named features; `fitted_on` says on what (free text).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Ranker {
@@ -79,6 +151,8 @@ pub struct Ranker {
     pub scale: Vec<f64>,
     pub weights: Vec<f64>,
     pub bias: f64,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub trees: Vec<RankTree>,
     #[serde(default)]
     pub fitted_on: String,
 }
@@ -102,9 +176,15 @@ impl Ranker {
 
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(IsaError::InvalidInput(m));
-        if self.format != RANKER_FORMAT {
+        if self.format == 0 || self.format > RANKER_FORMAT {
             return bad(format!(
-                "ranker format {} (this build reads {RANKER_FORMAT})",
+                "ranker format {} (this build reads 1 to {RANKER_FORMAT})",
+                self.format
+            ));
+        }
+        if self.format < 2 && !self.trees.is_empty() {
+            return bad(format!(
+                "ranker format {} has no trees (format 2 has)",
                 self.format
             ));
         }
@@ -136,27 +216,35 @@ impl Ranker {
         if !finite || !self.scale.iter().all(|s| s.is_finite() && *s > 0.0) {
             return bad("ranker: means, weights and bias must be finite, scales positive".into());
         }
+        for (t, tree) in self.trees.iter().enumerate() {
+            tree.check(n)
+                .or_else(|m| bad(format!("ranker: tree {t}: {m}")))?;
+        }
         Ok(())
     }
 
     /// The probability that a detection with features `f` (all of [`FEATURES`], in order) is
     /// a true object.
     pub fn probability(&self, f: &[f64; FEATURES.len()]) -> f64 {
-        let z = self.bias
-            + self
-                .features
-                .iter()
-                .zip(&self.mean)
-                .zip(&self.scale)
-                .zip(&self.weights)
-                .map(|(((name, m), s), w)| {
-                    let k = FEATURES
-                        .iter()
-                        .position(|x| x == name)
-                        .expect("validated names");
-                    w * (f[k] - m) / s
-                })
-                .sum::<f64>();
+        let x: Vec<f64> = self
+            .features
+            .iter()
+            .map(|name| {
+                let k = FEATURES
+                    .iter()
+                    .position(|x| x == name)
+                    .expect("validated names");
+                f[k]
+            })
+            .collect();
+        let linear: f64 = x
+            .iter()
+            .zip(&self.mean)
+            .zip(&self.scale)
+            .zip(&self.weights)
+            .map(|(((v, m), s), w)| w * (v - m) / s)
+            .sum();
+        let z = self.bias + linear + self.trees.iter().map(|t| t.eval(&x)).sum::<f64>();
         1.0 / (1.0 + (-z).exp())
     }
 }
@@ -174,6 +262,7 @@ mod tests {
             scale: vec![2.0; features.len()],
             weights: weights.to_vec(),
             bias,
+            trees: Vec::new(),
             fitted_on: String::new(),
         }
     }
@@ -191,6 +280,81 @@ mod tests {
         g[1] = 1.0;
         g[0] = 123.0;
         assert!(r.probability(&g) > r.probability(&f));
+    }
+
+    /// A stump on `depth` (the ranker's feature 1): left (<= 2.5 m) adds -1, right +2.
+    fn stump() -> RankTree {
+        RankTree {
+            feature: vec![1, -1, -1],
+            threshold: vec![2.5, 0.0, 0.0],
+            left: vec![1, 0, 0],
+            right: vec![2, 0, 0],
+            value: vec![0.0, -1.0, 2.0],
+        }
+    }
+
+    #[test]
+    fn trees_add_their_leaf_to_the_log_odds() {
+        let mut r = ranker(&["agree", "depth"], &[0.0, 0.0], 0.5);
+        r.format = RANKER_FORMAT;
+        r.trees = vec![stump(), stump()];
+        let logistic = |z: f64| 1.0 / (1.0 + (-z).exp());
+        let mut f = [0.0; FEATURES.len()];
+        for (depth, leaf) in [(1.0, -1.0), (2.5, -1.0), (2.6, 2.0), (9.0, 2.0)] {
+            f[13] = depth;
+            assert!((r.probability(&f) - logistic(0.5 + 2.0 * leaf)).abs() < 1e-15);
+        }
+        // Compared in f32, as scikit-learn's trees compare: 2.5 + 1e-12 is 2.5.
+        f[13] = 2.5 + 1e-12;
+        assert!((r.probability(&f) - logistic(0.5 - 2.0)).abs() < 1e-15);
+        assert_eq!(Ranker::from_json(&r.to_json(), "x").unwrap(), r);
+    }
+
+    #[test]
+    fn bad_trees_and_old_formats_with_trees_are_refused() {
+        let mut ok = ranker(&["agree", "depth"], &[0.0, 0.0], 0.0);
+        ok.trees = vec![stump()];
+        let cycle = RankTree {
+            left: vec![0, 0, 0],
+            ..stump()
+        };
+        let far = RankTree {
+            feature: vec![2, -1, -1],
+            ..stump()
+        };
+        let short = RankTree {
+            value: vec![0.0],
+            ..stump()
+        };
+        for (tree, needle) in [
+            (cycle, "tree 0: node 0"),
+            (far, "feature 2 of 2"),
+            (short, "arrays of other lengths"),
+        ] {
+            let r = Ranker {
+                trees: vec![tree],
+                ..ok.clone()
+            };
+            let e = Ranker::from_json(&r.to_json(), "m.ranker.json")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("m.ranker.json") && e.contains(needle), "{e}");
+        }
+        let old = Ranker {
+            format: 1,
+            ..ok.clone()
+        };
+        let e = Ranker::from_json(&old.to_json(), "m")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("format 1 has no trees"), "{e}");
+        // A format-1 file (no trees) still reads.
+        let linear = Ranker {
+            format: 1,
+            trees: Vec::new(),
+            ..ok
+        };
+        assert_eq!(Ranker::from_json(&linear.to_json(), "m").unwrap(), linear);
     }
 
     #[test]
