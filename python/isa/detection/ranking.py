@@ -29,7 +29,7 @@ from scipy.optimize import minimize
 from tqdm import tqdm
 
 from isa import _core, atomic
-from isa.exceptions import DataError, InvalidValueError
+from isa.exceptions import DataError, InvalidValueError, MissingDependencyError
 
 __all__ = ["Ranker", "fit_ranker", "fit_boosted_ranker", "FEATURES"]
 
@@ -129,7 +129,10 @@ def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, 
     """A ranker whose log-odds are a sum of ``n_trees`` regression trees of ``depth`` levels
     (scikit-learn's ``GradientBoostingClassifier``, log-loss; at least ``min_leaf`` detections
     a leaf), exported as flat node arrays with the learning rate folded into the leaves."""
-    from sklearn.ensemble import GradientBoostingClassifier
+    try:
+        from sklearn.ensemble import GradientBoostingClassifier
+    except ImportError as e:
+        raise MissingDependencyError("fit_boosted_ranker needs scikit-learn: pip install 'isa[ranking]'") from e
 
     X = np.asarray(features, dtype=float)
     y = np.asarray(labels, dtype=bool)
