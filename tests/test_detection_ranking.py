@@ -49,7 +49,7 @@ def test_boosted_ranker_is_scikit_learns_gradient_boosting():
     y = (np.abs(X[:, 0] - 2.5) < 0.7) ^ (rng.random(800) < 0.1)
     names = ("depth", "agree")
     r = fit_boosted_ranker("chair", X, y, names, n_trees=30, depth=2, seed=3)
-    ref = GradientBoostingClassifier(n_estimators=30, max_depth=2, learning_rate=0.1, min_samples_leaf=20,
+    ref = GradientBoostingClassifier(n_estimators=30, max_depth=2, learning_rate=0.05, min_samples_leaf=20,
                                      random_state=3).fit(X, y)
     p = np.array([r.probability(dict(zip(names, x))) for x in X])
     np.testing.assert_allclose(p, ref.predict_proba(X)[:, 1], rtol=1e-9, atol=1e-12)

@@ -124,7 +124,7 @@ def fit_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: S
 
 
 def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: Sequence[str] = FEATURES,
-                       n_trees: int = 100, depth: int = 2, learning_rate: float = 0.1, min_leaf: int = 20,
+                       n_trees: int = 100, depth: int = 2, learning_rate: float = 0.05, min_leaf: int = 20,
                        seed: int = 0, fitted_on: str = "") -> Ranker:
     """A ranker whose log-odds are a sum of ``n_trees`` regression trees of ``depth`` levels
     (scikit-learn's ``GradientBoostingClassifier``, log-loss; at least ``min_leaf`` detections
@@ -206,6 +206,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("-C", type=float, default=0.1, help="logistic: inverse L2 strength (default 0.1)")
     p.add_argument("--trees", type=int, default=100, help="boosted: number of trees (default 100)")
     p.add_argument("--depth", type=int, default=2, help="boosted: levels per tree (default 2)")
+    p.add_argument("--learning-rate", type=float, default=0.05, help="boosted: shrinkage (default 0.05)")
     p.add_argument("--seed", type=int, default=0, help="boosted: random seed (default 0)")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for <category>.ranker.json")
     a = p.parse_args(argv)
@@ -224,7 +225,8 @@ def main(argv: list[str] | None = None) -> None:
     for cat, (X, y) in data.items():
         on = f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}"
         if a.kind == "boosted":
-            r = fit_boosted_ranker(cat, X, y, n_trees=a.trees, depth=a.depth, seed=a.seed, fitted_on=on)
+            r = fit_boosted_ranker(cat, X, y, n_trees=a.trees, depth=a.depth, learning_rate=a.learning_rate,
+                                   seed=a.seed, fitted_on=on)
         else:
             r = fit_ranker(cat, X, y, c=a.C, fitted_on=on)
         r.save(a.out / f"{cat}.ranker.json")
