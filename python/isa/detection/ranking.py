@@ -6,11 +6,14 @@ made of, the forest's score, the size fit and the pose tell them apart better. A
 :class:`Ranker` is a logistic model of one category over those features
 (``isa._core.RANK_FEATURES``; ``isa_core::scene::ranking``), applied by the core to the
 detections NMS keeps; a boosted ranker (:func:`fit_boosted_ranker`, scikit-learn's gradient
-boosting) adds regression trees to its log-odds. It is fitted on *validation* rooms (scenes made from train-split meshes,
-``python -m isa scenes make``), never on test rooms:
+boosting, ``pip install 'isa[ranking]'``) adds regression trees to its log-odds. Rankers are
+fitted on *validation* rooms (scenes made from train-split meshes, ``python -m isa scenes
+make``), never on test rooms:
 
     python -m isa.detection.ranking --scenes VAL --model chair=chair.isa ... --shapes SHAPES -o DIR
 
+(boosted by default, chosen on validation rooms: docs/experiments.md; ``--kind logistic`` for
+the linear model, which suits a few dozen detections better)
 writes ``DIR/<category>.ranker.json``; :func:`isa.detection.multi.load_model` reads
 ``<model>.ranker.json`` beside a model (or ``ranker=``). Give every category a ranker or none:
 a probability and a verification score do not rank together.
@@ -201,8 +204,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--split", default="val")
     p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
     p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz (default: beside each model)")
-    p.add_argument("--kind", choices=("logistic", "boosted"), default="logistic",
-                   help="linear log-odds, or boosted regression trees (default logistic)")
+    p.add_argument("--kind", choices=("logistic", "boosted"), default="boosted",
+                   help="boosted regression trees (the default; they need a few hundred detections per "
+                        "category), or linear log-odds")
     p.add_argument("-C", type=float, default=0.1, help="logistic: inverse L2 strength (default 0.1)")
     p.add_argument("--trees", type=int, default=100, help="boosted: number of trees (default 100)")
     p.add_argument("--depth", type=int, default=2, help="boosted: levels per tree (default 2)")
