@@ -41,6 +41,27 @@ pub fn describe(obj: &Bound<'_, PyAny>) -> String {
     }
 }
 
+/// A 3x3 matrix argument (any nested sequence of numbers), rows as given.
+pub fn mat3_rows(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[[f64; 3]; 3]> {
+    obj.extract().map_err(|_| {
+        input_err(format!(
+            "{name}: expected a 3x3 matrix, got {}",
+            describe(obj)
+        ))
+    })
+}
+
+/// A 3-vector argument (any sequence of 3 numbers).
+pub fn vec3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
+    obj.extract()
+        .map_err(|_| input_err(format!("{name}: expected 3 numbers, got {}", describe(obj))))
+}
+
+/// A pose's translation argument `t` (`#[pyo3(from_py_with = t_arg)]`).
+pub fn t_arg(obj: &Bound<'_, PyAny>) -> PyResult<[f64; 3]> {
+    vec3(obj, "t")
+}
+
 /// Borrows `obj` as a C-contiguous `dtype` array of `ndim` dimensions whose shape matches
 /// `shape` (None = any size). `want` names the dtype for messages.
 pub fn array<'py, T: Element>(

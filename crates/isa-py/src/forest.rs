@@ -208,8 +208,7 @@ impl PyForest {
     /// those. ``on_tree(trees_done)``, if given, is called after each tree (for a progress bar);
     /// its first exception is raised once training ends.
     // Its arguments are `write_trainset`'s on purpose (the file holds what `isa train` fits on;
-    // both convert them with `arrays::TrainParts`); `duplicates` lists the pair, and
-    // `refine_pose`'s list of `&Bound<PyAny>` arguments looks alike to it too.
+    // both convert them with `arrays::TrainParts`); `duplicates` lists the pair.
     #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata=String::from("{}"), on_tree=None, predict_defaults=None))]
     #[allow(clippy::too_many_arguments)]
     fn fit(

@@ -138,9 +138,6 @@ pub(crate) fn votes_dict(py: Python<'_>, iv: core_vote::ImageVotes) -> PyResult<
 /// Mode finding on given votes: `positions` (V, 3) float32 metres, `rotations` (V, 4) float32
 /// (w, x, y, z, any sign), `weights` (V,) float32 or None (all 1). Keyword parameters: those of
 /// `VoteParams`. Returns hypotheses as `Forest.predict` does.
-// Its argument list looks like other bindings' to `duplicates` (`detect`): each Python
-// argument is its own `&Bound<PyAny>`, checked in the body so that errors name it; the lists are
-// the public signatures, not repeated logic.
 #[pyfunction]
 #[pyo3(signature = (positions, rotations, weights=None, *, n_threads=None, **params))]
 pub fn find_modes<'py>(

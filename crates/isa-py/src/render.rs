@@ -7,8 +7,9 @@ use numpy::{Element, PyArray2, PyUntypedArray};
 use pyo3::prelude::*;
 
 use isa_core::render::{render_depth as core_render, RenderCamera};
+use isa_core::vote::Intrinsics;
 
-use crate::arrays::{describe, fixed_rows, matrix};
+use crate::arrays::{describe, fixed_rows, mat3_rows, matrix, t_arg};
 use crate::errors::{input_err, to_py};
 use crate::predict::intrinsics;
 use crate::scalars::{count, number};
@@ -56,23 +57,25 @@ fn faces(obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> {
     }
 }
 
+/// The pose's rotation `R` as given (finiteness: the core, which names the vertex it spoils).
+fn r_arg(obj: &Bound<'_, PyAny>) -> PyResult<[[f64; 3]; 3]> {
+    mat3_rows(obj, "R")
+}
+
 /// Depth (H, W) float32 metres (0 = background) and mask (H, W) bool of the mesh
 /// (`vertices` (N, 3) float32 in the object frame, `faces` (M, 3) integer) at pose
 /// `X_cam = R @ X_obj + t`, through `K` (OpenCV, pixel centres at integers) in a
 /// `width` x `height` image between `znear` and `zfar` metres. Both windings of every face are
 /// drawn; the nearest face wins.
-// Each Python argument is its own `&Bound<PyAny>`, checked in the body so that errors name it;
-// `duplicates` pairs the list by shape with `verify_pose`'s (two public signatures, no shared
-// logic).
 #[pyfunction]
 #[pyo3(signature = (vertices, faces, R, t, K, width, height, znear, zfar))]
 #[allow(non_snake_case, clippy::too_many_arguments, clippy::type_complexity)]
 pub fn render_depth<'py>(
     vertices: &Bound<'py, PyAny>,
     faces: &Bound<'py, PyAny>,
-    R: &Bound<'py, PyAny>,
-    t: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
+    #[pyo3(from_py_with = r_arg)] R: [[f64; 3]; 3],
+    #[pyo3(from_py_with = t_arg)] t: [f64; 3],
+    #[pyo3(from_py_with = intrinsics)] K: Intrinsics,
     width: &Bound<'py, PyAny>,
     height: &Bound<'py, PyAny>,
     znear: &Bound<'py, PyAny>,
@@ -81,21 +84,15 @@ pub fn render_depth<'py>(
     let py = vertices.py();
     let v = fixed_rows::<f32, 3>(vertices, "vertices", "float32")?;
     let f = self::faces(faces)?;
-    let r: [[f64; 3]; 3] = R
-        .extract()
-        .map_err(|_| input_err(format!("R: expected a 3x3 matrix, got {}", describe(R))))?;
-    let t: [f64; 3] = t
-        .extract()
-        .map_err(|_| input_err(format!("t: expected 3 numbers, got {}", describe(t))))?;
     let camera = RenderCamera {
-        k: intrinsics(K)?,
+        k: K,
         width: count(width, "width", 0, input_err)?,
         height: count(height, "height", 0, input_err)?,
         znear: number(znear, "znear")?,
         zfar: number(zfar, "zfar")?,
     };
     let out = py
-        .detach(|| core_render(&v, &f, &r, &t, &camera))
+        .detach(|| core_render(&v, &f, &R, &t, &camera))
         .map_err(to_py)?;
     Ok((
         matrix(py, out.height, out.width, out.depth),

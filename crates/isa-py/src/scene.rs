@@ -15,11 +15,14 @@ use serde_json::Value;
 use isa_core::params::{overlay_json, DetectParams, PlaneParams, RefineParams, VerifyParams};
 use isa_core::scene::{self, planes::Planes, Camera, Frame, ShapeLibrary, SizeRange};
 
-use crate::arrays::{array, as_slice, describe, fixed_rows, given, rows, set_fields, vector};
+use crate::arrays::{
+    array, as_slice, describe, fixed_rows, given, mat3_rows, rows, set_fields, t_arg, vector,
+};
 use crate::errors::{input_err, to_py};
 use crate::hypothesis::PyHypothesis;
 use crate::params::json_to_py;
 use crate::predict::{core_forest, intrinsics};
+use isa_core::vote::Intrinsics;
 
 /// A dict (or None) as JSON for the parameter overlay.
 fn dict_json(d: Option<&Bound<'_, PyAny>>) -> PyResult<Value> {
@@ -36,42 +39,44 @@ fn dict_json(d: Option<&Bound<'_, PyAny>>) -> PyResult<Value> {
     }
 }
 
-fn overlay<T: serde::Serialize + serde::de::DeserializeOwned + Default>(
+/// A stage's parameters: the dict `d` overlaid on the core's defaults, then `validate`d.
+fn stage_params<T: serde::Serialize + serde::de::DeserializeOwned + Default>(
     d: Option<&Bound<'_, PyAny>>,
     what: &str,
+    validate: impl FnOnce(&T) -> isa_core::Result<()>,
 ) -> PyResult<T> {
-    overlay_json(&T::default(), &dict_json(d)?, what).map_err(to_py)
+    let p = overlay_json(&T::default(), &dict_json(d)?, what).map_err(to_py)?;
+    validate(&p).map_err(to_py)?;
+    Ok(p)
 }
 
+/// A finite 3x3 matrix argument.
 fn mat3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Matrix3<f64>> {
-    let a: [[f64; 3]; 3] = obj.extract().map_err(|_| {
-        input_err(format!(
-            "{name}: expected a 3x3 matrix, got {}",
-            describe(obj)
-        ))
-    })?;
-    let m = scene::mat(&a);
+    let m = scene::mat(&mat3_rows(obj, name)?);
     if !m.iter().all(|x| x.is_finite()) {
         return Err(input_err(format!("{name}: not finite")));
     }
     Ok(m)
 }
 
-fn vec3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vector3<f64>> {
-    let a: [f64; 3] = obj
-        .extract()
-        .map_err(|_| input_err(format!("{name}: expected 3 numbers, got {}", describe(obj))))?;
-    Ok(Vector3::from(a))
+/// A pose's rotation argument `R` (`#[pyo3(from_py_with = r_arg)]`).
+fn r_arg(obj: &Bound<'_, PyAny>) -> PyResult<Matrix3<f64>> {
+    mat3(obj, "R")
+}
+
+/// The camera-to-upright rotation argument `R_gravity`.
+fn r_gravity_arg(obj: &Bound<'_, PyAny>) -> PyResult<Matrix3<f64>> {
+    mat3(obj, "R_gravity")
 }
 
 /// The (H, W) float32 metre depth and its camera.
 fn depth_frame<'py>(
     depth: &Bound<'py, PyAny>,
-    k: &Bound<'py, PyAny>,
+    k: Intrinsics,
 ) -> PyResult<(numpy::PyReadonlyArrayDyn<'py, f32>, Camera)> {
     let a = array::<f32>(depth, "depth", "float32", &[None, None])?;
     let (h, w) = (a.shape()[0], a.shape()[1]);
-    Ok((a, Camera::new(intrinsics(k)?, w, h).map_err(to_py)?))
+    Ok((a, Camera::new(k, w, h).map_err(to_py)?))
 }
 
 fn points_f64(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Vector3<f64>>> {
@@ -221,21 +226,19 @@ fn planes_dict<'py>(
 #[allow(non_snake_case)]
 pub fn find_planes<'py>(
     depth: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
-    R_gravity: &Bound<'py, PyAny>,
+    #[pyo3(from_py_with = intrinsics)] K: Intrinsics,
+    #[pyo3(from_py_with = r_gravity_arg)] R_gravity: Matrix3<f64>,
     params: Option<&Bound<'py, PyAny>>,
     floor: bool,
     walls: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = depth.py();
-    let p: PlaneParams = overlay(params, "plane parameters")?;
-    p.validate().map_err(to_py)?;
-    let rg = mat3(R_gravity, "R_gravity")?;
+    let p = stage_params(params, "plane parameters", PlaneParams::validate)?;
     let (a, cam) = depth_frame(depth, K)?;
     let d = as_slice(&a, "depth")?;
     let out = py
         .detach(|| {
-            Frame::new(d, cam).map(|f| scene::planes::find_planes(&f, &rg, &p, floor, walls))
+            Frame::new(d, cam).map(|f| scene::planes::find_planes(&f, &R_gravity, &p, floor, walls))
         })
         .map_err(to_py)?;
     planes_dict(py, &out, cam.height, cam.width)
@@ -250,9 +253,9 @@ pub fn find_planes<'py>(
 #[allow(non_snake_case, clippy::too_many_arguments)]
 pub fn verify_pose<'py>(
     depth: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
-    R: &Bound<'py, PyAny>,
-    t: &Bound<'py, PyAny>,
+    #[pyo3(from_py_with = intrinsics)] K: Intrinsics,
+    #[pyo3(from_py_with = r_arg)] R: Matrix3<f64>,
+    #[pyo3(from_py_with = t_arg)] t: [f64; 3],
     points: &Bound<'py, PyAny>,
     spacing: f64,
     planes: Option<&Bound<'py, PyAny>>,
@@ -260,8 +263,7 @@ pub fn verify_pose<'py>(
     n_points: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = depth.py();
-    let p: VerifyParams = overlay(params, "verification parameters")?;
-    p.validate().map_err(to_py)?;
+    let p = stage_params(params, "verification parameters", VerifyParams::validate)?;
     let (a, cam) = depth_frame(depth, K)?;
     let d = as_slice(&a, "depth")?;
     let mask = match given(planes) {
@@ -281,12 +283,20 @@ pub fn verify_pose<'py>(
         .iter()
         .map(|q| [q.x as f32, q.y as f32, q.z as f32])
         .collect();
-    let (r, t) = (mat3(R, "R")?, vec3(t, "t")?);
     let ev = scene::verify::Evidence {
         frame: Frame::new(d, cam).map_err(to_py)?,
         planes: mask_s,
     };
-    let v = scene::verify::verify_pose(&ev, &r, &t, &pts, [1.0; 3], spacing, &p, n_points);
+    let v = scene::verify::verify_pose(
+        &ev,
+        &R,
+        &Vector3::from(t),
+        &pts,
+        [1.0; 3],
+        spacing,
+        &p,
+        n_points,
+    );
     let out = PyDict::new(py);
     set_fields!(out, v; score, agree, violate, occluded, missing, outside, unexplained);
     Ok(out)
@@ -295,29 +305,25 @@ pub fn verify_pose<'py>(
 /// Upright ICP of a shape (`shape_points` (N, 3), `bounds` (2, 3), `normals` (N, 3) or None)
 /// from `(R, t)` on upright-frame points `points_up` (M, 3) of a `width` x `height` camera:
 /// `{"R", "t", "rms", "pairs", "yaw_change", "shift", "converged"}`.
-// Its argument list looks like other bindings' to `duplicates` (`Forest.fit`, `write_trainset`): each Python
-// argument is its own `&Bound<PyAny>`, checked in the body so that errors name it; the lists are
-// the public signatures, not repeated logic.
 #[pyfunction]
 #[pyo3(signature = (points_up, K, width, height, R, t, shape_points, bounds, R_gravity, params=None, normals=None))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
 pub fn refine_pose<'py>(
     points_up: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
+    #[pyo3(from_py_with = intrinsics)] K: Intrinsics,
     width: usize,
     height: usize,
-    R: &Bound<'py, PyAny>,
-    t: &Bound<'py, PyAny>,
+    #[pyo3(from_py_with = r_arg)] R: Matrix3<f64>,
+    #[pyo3(from_py_with = t_arg)] t: [f64; 3],
     shape_points: &Bound<'py, PyAny>,
     bounds: &Bound<'py, PyAny>,
-    R_gravity: &Bound<'py, PyAny>,
+    #[pyo3(from_py_with = r_gravity_arg)] R_gravity: Matrix3<f64>,
     params: Option<&Bound<'py, PyAny>>,
     normals: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let py = points_up.py();
-    let p: RefineParams = overlay(params, "refinement parameters")?;
-    p.validate().map_err(to_py)?;
-    let cam = Camera::new(intrinsics(K)?, width, height).map_err(to_py)?;
+    let p = stage_params(params, "refinement parameters", RefineParams::validate)?;
+    let cam = Camera::new(K, width, height).map_err(to_py)?;
     let obs = points_f64(points_up, "points_up")?;
     let pts = points_f64(shape_points, "shape_points")?;
     let nrm = match given(normals) {
@@ -330,9 +336,9 @@ pub fn refine_pose<'py>(
     let b: [[f64; 3]; 2] = bounds
         .extract()
         .map_err(|_| input_err(format!("bounds: expected (2, 3), got {}", describe(bounds))))?;
-    let (r, t, rg) = (mat3(R, "R")?, vec3(t, "t")?, mat3(R_gravity, "R_gravity")?);
+    let t = Vector3::from(t);
     let out = py.detach(|| {
-        scene::refine::refine_pose(&obs, &cam, &r, &t, &pts, nrm.as_deref(), b, &rg, &p)
+        scene::refine::refine_pose(&obs, &cam, &R, &t, &pts, nrm.as_deref(), b, &R_gravity, &p)
     });
     let d = PyDict::new(py);
     d.set_item("R", rows(py, scene::rows(&out.r).into_iter()))?;
@@ -364,15 +370,12 @@ pub fn nms_across(boxes: &Bound<'_, PyAny>, iou: f64, overlap: f64) -> PyResult<
 /// `gravity` (3, 3) camera -> upright or None; `removed` (H, W) bool planes found beforehand
 /// (with `planes`, their list) or None; `params` a DetectParams dict. Returns `{"detections":
 /// [dict], "gravity", "gravity_source", "floor_height", "planes", "removed", "seconds"}`.
-// Its argument list looks like other bindings' to `duplicates` (`find_planes`, `find_modes`): each Python
-// argument is its own `&Bound<PyAny>`, checked in the body so that errors name it; the lists are
-// the public signatures, not repeated logic.
 #[pyfunction]
 #[pyo3(signature = (depth, K, models, gravity=None, planes=None, params=None))]
 #[allow(non_snake_case)]
 pub fn detect<'py>(
     depth: &Bound<'py, PyAny>,
-    K: &Bound<'py, PyAny>,
+    #[pyo3(from_py_with = intrinsics)] K: Intrinsics,
     models: &Bound<'py, PyList>,
     gravity: Option<&Bound<'py, PyAny>>,
     planes: Option<&Bound<'py, PyAny>>,

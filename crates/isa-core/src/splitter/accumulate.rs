@@ -156,28 +156,38 @@ struct Block<'a> {
     k0: usize,
 }
 
+impl Block<'_> {
+    /// The block's parts.
+    #[inline(always)]
+    fn parts(&self) -> std::ops::Range<usize> {
+        self.js.0..self.js.1
+    }
+    /// Where part `j`'s column chunk starts in `z`.
+    #[inline(always)]
+    fn z_at(&self, j: usize) -> usize {
+        j * self.mp + self.k0
+    }
+    /// Where the chunk of the partial row of bin `b` of the group's candidate `gi` starts.
+    #[inline(always)]
+    fn part_at(&self, gi: usize, b: usize) -> usize {
+        (gi * self.grp.2 + b) * self.mp + self.k0
+    }
+}
+
 /// Adds `z[j, k0..k0 + 8W]` of the parts `j0..j1` into `part[(gi, bin_gi(j)), k0..]` for the
 /// `g` candidates `c0..c0 + g` (portable path; the loop nest keeps one row chunk in registers
 /// while it is added into every candidate's bin).
 #[inline(always)]
 fn add_block_lanes<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
-    let Block {
-        z,
-        mp,
-        js: (j0, j1),
-        bins,
-        grp: (c0, g, nb),
-        k0,
-    } = blk;
-    for j in j0..j1 {
-        let zr = &z[j * mp + k0..j * mp + k0 + 8 * W];
+    let (c0, g, _) = blk.grp;
+    for j in blk.parts() {
+        let zr = &blk.z[blk.z_at(j)..blk.z_at(j) + 8 * W];
         let mut v = [[0f32; 8]; W];
         for (w, lane) in v.iter_mut().enumerate() {
             lane.copy_from_slice(&zr[8 * w..8 * w + 8]);
         }
         for gi in 0..g {
-            let b = bins.at(j, c0 + gi);
-            let o = (gi * nb + b as usize) * mp + k0;
+            let o = blk.part_at(gi, blk.bins.at(j, c0 + gi) as usize);
             let p = &mut part[o..o + 8 * W];
             for (w, lane) in v.iter().enumerate() {
                 for (a, x) in p[8 * w..8 * w + 8].iter_mut().zip(lane) {
@@ -189,8 +199,7 @@ fn add_block_lanes<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
 }
 
 /// AVX2 form of [`add_block_lanes`] (same additions in the same order: bit-identical).
-/// Its destructuring of the block repeats the portable twin's on purpose (`duplicates` lists
-/// the pair): the bodies differ, and `accumulation_paths_agree` compares the two paths.
+/// `accumulation_paths_agree` compares the two paths.
 ///
 /// # Safety
 /// AVX2 must be available; `z` holds `j1 * mp` values, `bins` covers parts `..j1` and
@@ -200,20 +209,14 @@ fn add_block_lanes<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
 #[target_feature(enable = "avx2")]
 unsafe fn add_block_lanes_avx2<const W: usize>(blk: Block<'_>, part: &mut [f32]) {
     use std::arch::x86_64::*;
-    let Block {
-        z,
-        mp,
-        js: (j0, j1),
-        bins,
-        grp: (c0, g, nb),
-        k0,
-    } = blk;
-    debug_assert!(z.len() >= j1 * mp && part.len() >= g * nb * mp);
-    let (sj, sc) = (bins.part_stride, bins.cand_stride);
-    let (zp, pp) = (z.as_ptr(), part.as_mut_ptr());
-    let bp = bins.data.as_ptr().add(c0 * sc);
-    for j in j0..j1 {
-        let zr = zp.add(j * mp + k0);
+    let (c0, g, nb) = blk.grp;
+    let mp = blk.mp;
+    debug_assert!(blk.z.len() >= blk.js.1 * mp && part.len() >= g * nb * mp);
+    let (sj, sc) = (blk.bins.part_stride, blk.bins.cand_stride);
+    let (zp, pp) = (blk.z.as_ptr(), part.as_mut_ptr());
+    let bp = blk.bins.data.as_ptr().add(c0 * sc);
+    for j in blk.parts() {
+        let zr = zp.add(blk.z_at(j));
         // Rows of `z` stream from memory on the first pass over a block: fetch 4 rows ahead
         // (a hint; never faults, also past the end).
         let ahead = zr.wrapping_add(4 * mp);
@@ -228,7 +231,7 @@ unsafe fn add_block_lanes_avx2<const W: usize>(blk: Block<'_>, part: &mut [f32])
         for gi in 0..g {
             let b = *br.add(gi * sc) as usize;
             debug_assert!(b < nb);
-            let p = pp.add((gi * nb + b) * mp + k0);
+            let p = pp.add(blk.part_at(gi, b));
             for (w, lane) in v.iter().enumerate() {
                 let q = p.add(8 * w);
                 _mm256_store_ps(q, _mm256_add_ps(_mm256_load_ps(q), *lane));
