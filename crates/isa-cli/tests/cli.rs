@@ -751,6 +751,19 @@ fn detect_errors_name_their_cause() {
     std::fs::write(rankers.join("chair.ranker.json"), r#"{"format": 1}"#).unwrap();
     let o = run(&["--model", &m, "--rankers", r]);
     expect_exit(&o, 4, &["chair.ranker.json", "not a ranker"]);
+    // A boosted ranker (format 2: a stump on the agreement) is read; one whose tree points
+    // back at its root is refused, naming the file.
+    let stump = r#"{"format": 2, "category": "chair", "features": ["agree"], "mean": [0.0],
+        "scale": [1.0], "weights": [0.0], "bias": 0.0, "trees": [{"feature": [0, -1, -1],
+        "threshold": [0.5, 0.0, 0.0], "left": [1, 0, 0], "right": [2, 0, 0],
+        "value": [0.0, -1.0, 1.0]}]}"#;
+    std::fs::write(rankers.join("chair.ranker.json"), stump).unwrap();
+    let o = run(&["--model", &m, "--rankers", r]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cycle = stump.replace(r#""left": [1, 0, 0]"#, r#""left": [0, 0, 0]"#);
+    std::fs::write(rankers.join("chair.ranker.json"), cycle).unwrap();
+    let o = run(&["--model", &m, "--rankers", r]);
+    expect_exit(&o, 4, &["chair.ranker.json", "tree 0"]);
     let params = tmp("detect_params.json");
     std::fs::write(&params, r#"{"verify": {"lateral": -1}}"#).unwrap();
     let o = run(&["--model", &m, "--params", params.to_str().unwrap()]);
