@@ -69,6 +69,17 @@ def test_fit_needs_both_outcomes():
         fit_ranker("chair", np.zeros((4, 1)), np.ones(4, bool), ("agree",))
 
 
+@pytest.mark.parametrize("kw, needle", [({"n_trees": 0}, "n_trees"), ({"depth": 1.5}, "depth"),
+                                        ({"min_leaf": -1}, "min_leaf"), ({"learning_rate": 0.0}, "learning_rate")])
+def test_boosted_fit_refuses_bad_settings_by_name(kw, needle):
+    X, y = np.arange(8.0)[:, None], np.arange(8) % 2 == 0
+    with pytest.raises(ValueError, match=needle) as e:
+        fit_boosted_ranker("chair", X, y, ("agree",), **kw)
+    assert isinstance(e.value, IsaError)
+    with pytest.raises(IsaError, match="c must be positive"):
+        fit_ranker("chair", X, y, ("agree",), c=0.0)
+
+
 def test_ranker_file_roundtrip_and_errors(tmp_path):
     r = Ranker("chair", ("agree", "log_forest_score"), (0.5, -1.0), (0.2, 1.5), (2.0, 0.3), -1.0, "test")
     r.save(tmp_path / "chair.ranker.json")

@@ -106,6 +106,8 @@ def fit_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: S
     X = np.asarray(features, dtype=float)
     y = np.asarray(labels, dtype=bool)
     _check_training_set(category, X, y, names)
+    if not c > 0:
+        raise InvalidValueError(f"fit_ranker: c must be positive, got {c!r}")
     mean = X.mean(0)
     scale = X.std(0)
     scale[scale < 1e-9] = 1.0  # a constant feature: its weight goes to 0 under the penalty
@@ -140,6 +142,11 @@ def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, 
     X = np.asarray(features, dtype=float)
     y = np.asarray(labels, dtype=bool)
     _check_training_set(category, X, y, names)
+    for name, value in (("n_trees", n_trees), ("depth", depth), ("min_leaf", min_leaf)):
+        if int(value) != value or value < 1:
+            raise InvalidValueError(f"fit_boosted_ranker: {name} must be a whole number >= 1, got {value!r}")
+    if not 0 < learning_rate <= 1:
+        raise InvalidValueError(f"fit_boosted_ranker: learning_rate must be in (0, 1], got {learning_rate!r}")
     gb = GradientBoostingClassifier(n_estimators=n_trees, max_depth=depth, learning_rate=learning_rate,
                                     min_samples_leaf=min_leaf, random_state=seed).fit(X, y)
     trees = []
