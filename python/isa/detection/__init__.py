@@ -56,7 +56,7 @@ __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
     "shapes": ["ShapeLibrary", "shape_library", "bop_shape_library"],
     "verify": ["VerifyParams", "Verification", "DepthEvidence", "verify_pose"],
     "proposals": ["ProposalParams"],
-    "ranking": ["Ranker", "fit_ranker"],
+    "ranking": ["Ranker", "fit_ranker", "fit_boosted_ranker"],
     "refine": ["RefineParams", "Refinement", "refine_pose", "upright_points"],
     "gravity": ["GravityEstimate", "estimate_gravity"],
     "background": ["LeafForeground", "fit_leaf_foreground", "weighted_predict"],
