@@ -57,6 +57,27 @@ def test_parameters_are_the_cores():
         _core.detect(np.zeros((4, 4), np.float32), (1.0, 1.0, 2.0, 2.0), [], None, None, {"verfy": {}})
 
 
+def test_parameter_classes_are_made_from_the_core_sections():
+    import dataclasses
+
+    from isa.detection import DetectParams, RefineParams
+    from isa.detection.stage_params import core_params
+
+    d = _core.DETECT_DEFAULTS
+    for cls, section in ((PlaneParams, d["planes"]), (RefineParams, d["refine"]), (DetectParams, d)):
+        assert {f.name for f in dataclasses.fields(cls)} == set(section)  # one field per core key, no more
+    assert DetectParams(stride=6).to_dict() == {**DetectParams().to_dict(), "stride": 6}
+    with pytest.raises(TypeError):
+        RefineParams(8)  # keyword-only: the field order is the core's, not a documented one
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        RefineParams().iterations = 3  # type: ignore[misc]
+    with pytest.raises(TypeError, match="itrations"):  # a declared field the core lacks is refused at class creation
+
+        @core_params("refine")
+        class Bad:
+            itrations: int = 3
+
+
 def test_shape_library_isl_roundtrip_and_errors(tmp_path, chairs):
     from isa.exceptions import DataError
 

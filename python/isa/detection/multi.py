@@ -42,6 +42,7 @@ from isa.detection.planes import PlaneParams
 from isa.detection.proposals import ProposalParams
 from isa.detection.refine import RefineParams
 from isa.detection.shapes import ShapeLibrary
+from isa.detection.stage_params import core_params
 from isa.detection.verify import VerifyParams
 from isa.evaluation.boxes3d import Box3D, box_from_pose
 from isa.exceptions import DataError
@@ -103,7 +104,7 @@ def load_model(path: str | Path, shapes: str | Path | ShapeLibrary | None = None
     return CategoryModel(category or box.category or forest.metadata.get("category"), forest, box, shapes, ranker)
 
 
-@dataclass(frozen=True)
+@core_params(None)
 class DetectParams:
     """``stride``, ``max_hypotheses`` go to each forest's voting; ``max_tilt_deg`` rejects
     hypotheses tilted further from up; ``floor_gap`` rejects those whose bottom is further from
@@ -120,29 +121,13 @@ class DetectParams:
     ``min_score`` drops those with a weaker verified score, before ranking (None: none); ``rank_before_nms`` ranks every candidate
     before NMS (the rankers' probabilities decide overlaps) instead of the kept detections
     only; ``predict`` further voting keywords.
-    Defaults: the core's (``isa._core.DETECT_DEFAULTS``)."""
+    Defaults: the core's (``isa._core.DETECT_DEFAULTS``); the nested stages are declared here
+    because each is a class of its own."""
 
-    stride: int = _D["stride"]
-    max_hypotheses: int = _D["max_hypotheses"]
-    max_tilt_deg: float | None = _D["max_tilt_deg"]
-    remove_planes: bool = _D["remove_planes"]
-    floor_gap: float | None = _D["floor_gap"]
     planes: PlaneParams = field(default_factory=PlaneParams)
     verify: VerifyParams | None = field(default_factory=VerifyParams)
     refine: RefineParams | None = field(default_factory=RefineParams)
     proposals: ProposalParams | None = field(default_factory=ProposalParams)
-    refine_top: int = _D["refine_top"]
-    turns: int = _D["turns"]
-    size_top: int = _D["size_top"]
-    size_shapes: int = _D["size_shapes"]
-    size_steps: tuple[float, ...] = tuple(_D["size_steps"])
-    quick_points: int | None = _D["quick_points"]
-    forest_weight: float = _D["forest_weight"]
-    nms_iou: float = _D["nms_iou"]
-    nms_overlap: float = _D["nms_overlap"]
-    max_detections: int = _D["max_detections"]
-    rank_before_nms: bool = _D["rank_before_nms"]
-    min_score: float | None = _D["min_score"]
     predict: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:

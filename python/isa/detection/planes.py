@@ -13,15 +13,12 @@ import numpy as np
 
 from isa import _core
 from isa.camera import Intrinsics
-from isa.detection.stage_params import StageParams
+from isa.detection.stage_params import StageParams, core_params
 from isa.exceptions import InvalidValueError
 
-_D = _core.DETECT_DEFAULTS["planes"]
 
-
-# One typed field per parameter of the core's section (see stage_params): `duplicates` pairs the
-# field lists of the three stages by shape.
-@dataclass(frozen=True)
+# The fields are the core's section, one per parameter (stage_params.core_params).
+@core_params("planes")
 class PlaneParams(StageParams):
     """Plane finding. ``tolerance`` ``(base, k)``: a point is on a plane within
     ``max(base, k * depth**2)`` metres (Kinect noise grows with the square of the depth; k = 3
@@ -33,19 +30,6 @@ class PlaneParams(StageParams):
     score ``ransac_iterations`` wall hypotheses and ``check_samples`` to screen candidates before
     the test on every point; ``seed`` makes it reproducible. Defaults: the core's."""
 
-    tolerance: tuple[float, float] = tuple(_D["tolerance"])  # type: ignore[assignment]
-    min_floor_fraction: float = _D["min_floor_fraction"]
-    min_floor_drop: float = _D["min_floor_drop"]
-    floor_search: float = _D["floor_search"]
-    min_wall_fraction: float = _D["min_wall_fraction"]
-    min_wall_height: float = _D["min_wall_height"]
-    min_wall_width: float = _D["min_wall_width"]
-    max_walls: int = _D["max_walls"]
-    wall_candidates: int = _D["wall_candidates"]
-    ransac_iterations: int = _D["ransac_iterations"]
-    samples: int = _D["samples"]
-    check_samples: int = _D["check_samples"]
-    seed: int = _D["seed"]
 
 
 @dataclass(frozen=True, eq=False)

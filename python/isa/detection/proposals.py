@@ -7,18 +7,14 @@ and verification decides among them and the forests' own hypotheses."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-from isa import _core
-from isa.detection.stage_params import StageParams
+from isa.detection.stage_params import StageParams, core_params
 
 __all__ = ["ProposalParams"]
 
-_D = _core.DETECT_DEFAULTS["proposals"]
 
 
-# One typed field per parameter of the core's section (see stage_params).
-@dataclass(frozen=True)
+# The fields are the core's section, one per parameter (stage_params.core_params).
+@core_params("proposals")
 class ProposalParams(StageParams):
     """``stride`` pixel stride of the points binned; ``cell`` grid side (metres); points between
     ``clearance`` and ``max_height`` above the floor count; a cell with fewer than
@@ -29,13 +25,3 @@ class ProposalParams(StageParams):
     the category's sizes (the size fit's 15% margin, then ``size_slack`` metres) proposes nothing
     for it (None: no check). Defaults: the core's."""
 
-    stride: int = _D["stride"]
-    cell: float = _D["cell"]
-    clearance: float = _D["clearance"]
-    max_height: float = _D["max_height"]
-    min_cell_points: int = _D["min_cell_points"]
-    min_points: int = _D["min_points"]
-    max_footprints: int = _D["max_footprints"]
-    vote_margin: float = _D["vote_margin"]
-    unvoted: float = _D["unvoted"]
-    size_slack: float | None = _D["size_slack"]

@@ -15,16 +15,14 @@ import numpy as np
 
 from isa import _core
 from isa.camera import Intrinsics
-from isa.detection.stage_params import StageParams
+from isa.detection.stage_params import StageParams, core_params
 
 __all__ = ["RefineParams", "Refinement", "upright_points", "refine_pose"]
 
-_D = _core.DETECT_DEFAULTS["refine"]
 
 
-# One typed field per parameter of the core's section (see stage_params): `duplicates` pairs the
-# field lists of the three stages by shape.
-@dataclass(frozen=True)
+# The fields are the core's section, one per parameter (stage_params.core_params).
+@core_params("refine")
 class RefineParams(StageParams):
     """``iterations`` of ICP; the trimming distance falls from ``max_distance`` to
     ``min_distance`` (metres) geometrically; ``margin`` (metres) around the shape's box that
@@ -34,16 +32,6 @@ class RefineParams(StageParams):
     subsampled); ``cell_px`` the z-buffer cell for the shape's visible surface; ``fix_height``
     keeps the height (the detector sets it when a floor is found). Defaults: the core's."""
 
-    iterations: int = _D["iterations"]
-    max_distance: float = _D["max_distance"]
-    min_distance: float = _D["min_distance"]
-    margin: float = _D["margin"]
-    max_yaw_deg: float = _D["max_yaw_deg"]
-    max_shift: float = _D["max_shift"]
-    min_pairs: int = _D["min_pairs"]
-    max_points: int = _D["max_points"]
-    cell_px: int = _D["cell_px"]
-    fix_height: bool = _D["fix_height"]
 
 
 @dataclass(frozen=True)

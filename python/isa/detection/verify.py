@@ -40,17 +40,15 @@ import numpy as np
 
 from isa import _core
 from isa.camera import Intrinsics
-from isa.detection.stage_params import StageParams
+from isa.detection.stage_params import StageParams, core_params
 from isa.exceptions import InvalidValueError
 
 __all__ = ["VerifyParams", "Verification", "DepthEvidence", "verify_pose", "verify_shapes"]
 
-_D = _core.DETECT_DEFAULTS["verify"]
 
 
-# One typed field per parameter of the core's section (see stage_params): `duplicates` pairs the
-# field lists of the three stages by shape.
-@dataclass(frozen=True)
+# The fields are the core's section, one per parameter (stage_params.core_params).
+@core_params("verify")
 class VerifyParams(StageParams):
     """``tolerance`` ``(base, k)``: a cell agrees within ``max(base, k * z**2)`` metres (Kinect
     noise grows with z squared; as :class:`isa.detection.planes.PlaneParams`); ``violation_weight``
@@ -66,14 +64,6 @@ class VerifyParams(StageParams):
     one cell of observed surface inside the shape's box but in front of its surface, or where it
     has none, costs (0: not counted). Defaults: the core's."""
 
-    tolerance: tuple[float, float] = tuple(_D["tolerance"])  # type: ignore[assignment]
-    violation_weight: float = _D["violation_weight"]
-    unexplained_weight: float = _D["unexplained_weight"]
-    cell_spacing: float = _D["cell_spacing"]
-    min_cell_px: int = _D["min_cell_px"]
-    min_cells: int = _D["min_cells"]
-    lateral: float = _D["lateral"]
-    lateral_fraction: float = _D["lateral_fraction"]
 
 
 @dataclass(frozen=True)
