@@ -67,14 +67,14 @@ def build_detector(objects, renderer, n_views: int = 89, seed: int = 0, distance
     (min, max) metres the same directions at distances drawn from that range."""
     from isa.evaluation.linemod import LinemodDetector
     from isa.render.dataset import default_views, hull_points
-    from isa.render.views import training_views
+    from isa.render.views import ViewBand, training_views
 
     det = LinemodDetector(renderer.intrinsics, **params)
     for obj in objects:
         if distance is None:
             views = default_views(obj, n_views, seed=seed, intrinsics=renderer.intrinsics)
         else:
-            views = training_views(n_views, seed=[seed, obj.obj_id], distance=distance,
+            views = training_views(n_views, seed=[seed, obj.obj_id], band=ViewBand(distance=tuple(distance)),
                                    fit_points=hull_points(obj.mesh), intrinsics=renderer.intrinsics)
         for R, t in zip(views.R, views.t):
             depth, mask = renderer.render(obj.mesh, R, t)
@@ -86,7 +86,7 @@ def render_test_frames(objects, renderer, n: int, seed: int = 1, distance=(1.5, 
     """``n`` test images cycling over ``objects``, each from a random view that is not a training
     view of that object (3 degrees away at least), the whole object in the image."""
     from isa.render.dataset import default_views, hull_points
-    from isa.render.views import sample_test_views
+    from isa.render.views import ViewBand, sample_test_views
 
     per = [n // len(objects) + (i < n % len(objects)) for i in range(len(objects))]
     frames = []
@@ -95,7 +95,7 @@ def render_test_frames(objects, renderer, n: int, seed: int = 1, distance=(1.5, 
             continue
         views = sample_test_views(
             k, seed=[seed, obj.obj_id], exclude=default_views(obj, intrinsics=renderer.intrinsics),
-            distance=distance, fit_points=hull_points(obj.mesh), intrinsics=renderer.intrinsics,
+            band=ViewBand(distance=tuple(distance)), fit_points=hull_points(obj.mesh), intrinsics=renderer.intrinsics,
         )
         for R, t in zip(views.R, views.t):
             frames.append(Frame(renderer.render(obj.mesh, R, t)[0], R, t, obj.obj_id))

@@ -198,3 +198,14 @@ def test_command_line(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["--procedural", "1", "--category", "sofa", "--out", str(tmp_path)])
     assert "unknown category 'sofa'" in capsys.readouterr().err
+
+
+def test_view_band_places_training_and_test_cameras():
+    from isa.render.views import ViewBand
+
+    band = ViewBand(distance=(2.0, 2.0), elevation_deg=(30.0, 40.0), target=(0.0, 0.0, 0.5))
+    for v in (training_views(20, seed=0, band=band), sample_test_views(20, seed=1, band=band)):
+        rel = v.eye - np.array(band.target)
+        np.testing.assert_allclose(np.linalg.norm(rel, axis=1), 2.0)  # on the band's sphere
+        el = np.degrees(np.arcsin(rel[:, 2] / 2.0))
+        assert el.min() >= 30.0 - 1e-9 and el.max() <= 40.0 + 1e-9  # inside its elevations

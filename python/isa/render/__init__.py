@@ -9,7 +9,7 @@ __getattr__, __dir__, __all__ = lazy_reexport(__name__, {
         "release_gl", "DepthRenderer", "render_depth", "resolve_backend", "BACKENDS",
     ],
     "views": [
-        "GOLDEN_ANGLE", "Views", "look_at", "hemisphere_directions", "fit_distance", "training_views",
+        "GOLDEN_ANGLE", "Views", "ViewBand", "look_at", "hemisphere_directions", "fit_distance", "training_views",
         "sample_test_views",
     ],
     "noise": [

@@ -19,6 +19,19 @@ GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
 @dataclass(frozen=True)
+class ViewBand:
+    """Where the cameras of a dataset stand: distances (metres) uniform in ``distance``, directions
+    between the two elevations ``elevation_deg`` (degrees above the horizon), rolls uniform in
+    +-``roll_deg``, all looking at ``target`` (object frame). One band describes both the
+    training and the test views of a dataset (:func:`training_views`, :func:`sample_test_views`)."""
+
+    distance: tuple[float, float] = (1.5, 4.0)
+    elevation_deg: tuple[float, float] = (10.0, 80.0)
+    roll_deg: float = 0.0
+    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class Views:
     """N camera poses: ``R`` (N, 3, 3), ``t`` (N, 3) metres, and the camera centres ``eye`` (N, 3)
     in the object frame."""
@@ -91,14 +104,13 @@ def fit_distance(R: np.ndarray, points, target, intrinsics: Intrinsics = KINECT_
     return float(d.max())
 
 
-def _views_from(dirs: np.ndarray, rng: np.random.Generator, distance: tuple[float, float], roll_deg: float, target,
-                fit_points, intrinsics: Intrinsics) -> Views:
-    """Views along ``dirs`` from ``target``, distances uniform in ``distance`` and rolls in +-``roll_deg``
-    drawn from ``rng`` (the samplers' common last step)."""
+def _views_from(dirs: np.ndarray, rng: np.random.Generator, band: ViewBand, fit_points, intrinsics: Intrinsics) -> Views:
+    """Views along ``dirs`` from the band's target, its distances and rolls drawn from ``rng`` (the
+    samplers' common last step)."""
     n = len(dirs)
-    dist = rng.uniform(*distance, size=n)
-    roll = np.radians(rng.uniform(-roll_deg, roll_deg, size=n))
-    target = np.asarray(target, float)
+    dist = rng.uniform(*band.distance, size=n)
+    roll = np.radians(rng.uniform(-band.roll_deg, band.roll_deg, size=n))
+    target = np.asarray(band.target, float)
     Rs, ts, eyes = [], [], []
     for d, r, dirn in zip(dist, roll, dirs):
         R, _ = look_at(target + dirn, target, roll=r)  # the rotation does not depend on the distance
@@ -114,48 +126,41 @@ def _views_from(dirs: np.ndarray, rng: np.random.Generator, distance: tuple[floa
 def training_views(
     n: int = PAPER_VIEWS,
     seed: int = 0,
-    distance: tuple[float, float] = (1.5, 4.0),
-    elevation_deg: tuple[float, float] = (10.0, 80.0),
-    roll_deg: float = 0.0,
-    target=(0.0, 0.0, 0.0),
+    band: ViewBand = ViewBand(),
     fit_points=None,
     intrinsics: Intrinsics = KINECT_V1,
 ) -> Views:
-    """The training viewpoints: ``n`` (89, as in the paper) directions evenly over the hemisphere
-    band, a seeded azimuth offset, distances uniform in ``distance`` and rolls uniform in
-    +-``roll_deg``, all reproducible from ``seed``.
+    """The training viewpoints: ``n`` (89, as in the paper) directions evenly over the ``band``
+    (:class:`ViewBand`) with a seeded azimuth offset, its distances and rolls, all reproducible
+    from ``seed``.
 
     With ``fit_points`` (e.g. the mesh's convex-hull vertices) a view is moved back, when needed,
     until those points are all inside the ``intrinsics`` image (:func:`fit_distance`): large
     objects such as beds then keep whole in view.
     """
     rng = np.random.default_rng(seed)
-    dirs = hemisphere_directions(n, elevation_deg, azimuth0=rng.uniform(0, 2 * np.pi))
-    return _views_from(dirs, rng, distance, roll_deg, target, fit_points, intrinsics)
+    dirs = hemisphere_directions(n, band.elevation_deg, azimuth0=rng.uniform(0, 2 * np.pi))
+    return _views_from(dirs, rng, band, fit_points, intrinsics)
 
 
-# The view-band keywords (distance ... intrinsics) are training_views' on purpose: one set of them
-# describes both the training and the test views of a dataset.
 def sample_test_views(
     n: int,
     seed: int = 1,
     exclude: Views | None = None,
     min_separation_deg: float = 3.0,
-    distance: tuple[float, float] = (1.5, 4.0),
-    elevation_deg: tuple[float, float] = (10.0, 80.0),
-    roll_deg: float = 0.0,
-    target=(0.0, 0.0, 0.0),
+    band: ViewBand = ViewBand(),
     fit_points=None,
     intrinsics: Intrinsics = KINECT_V1,
 ) -> Views:
     """``n`` random viewpoints (uniform over the hemisphere band's area), each at least
     ``min_separation_deg`` away in direction from every view of ``exclude`` (the training set), so
-    that no test view is a training view. ``fit_points``/``intrinsics`` as in :func:`training_views`."""
+    that no test view is a training view. ``band``, ``fit_points``, ``intrinsics`` as in
+    :func:`training_views`."""
     rng = np.random.default_rng(seed)
-    lo, hi = np.sin(np.radians(elevation_deg))
+    lo, hi = np.sin(np.radians(band.elevation_deg))
     ex = None
     if exclude is not None and len(exclude):
-        ex = exclude.eye - np.asarray(target, float)
+        ex = exclude.eye - np.asarray(band.target, float)
         ex /= np.linalg.norm(ex, axis=1, keepdims=True)
     cos_min = np.cos(np.radians(min_separation_deg))
     dirs: list[np.ndarray] = []
@@ -168,4 +173,4 @@ def sample_test_views(
             dirs.append(d)
     if len(dirs) < n:
         raise InvalidValueError(f"sample_test_views: could not place {n} views {min_separation_deg} deg away from the training views")
-    return _views_from(np.array(dirs).reshape(-1, 3), rng, distance, roll_deg, target, fit_points, intrinsics)
+    return _views_from(np.array(dirs).reshape(-1, 3), rng, band, fit_points, intrinsics)
