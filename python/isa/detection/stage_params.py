@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Mapping, TypeVar
 
 from isa import _core
+from isa.exceptions import InvalidTypeError
 
 T = TypeVar("T")
 
@@ -43,7 +44,7 @@ def core_params(section: str | None) -> Callable[[type[T]], type[T]]:
         declared = dict(cls.__dict__.get("__annotations__", {}))
         unknown = set(declared) - set(defaults)
         if unknown:
-            raise TypeError(f"{cls.__name__}: fields {sorted(unknown)} are not core parameters "
+            raise InvalidTypeError(f"{cls.__name__}: fields {sorted(unknown)} are not core parameters "
                             f"of section {section!r}")
         annotations = dict(declared)
         for name, value in defaults.items():
