@@ -11,7 +11,7 @@ use isa_core::scene::{self, Camera, DetectOutput, Ranker, SceneModel, ShapeLibra
 use isa_core::{DetectParams, Forest, Valid};
 
 use super::predict::{each_image, image_jobs, ImageJob};
-use super::{flags_json, load_model, params_file, FLAGS};
+use super::{load_model, overlay_sources};
 use crate::args::{DetectArgs, DetectFormat};
 use crate::error::{CliError, CliResult};
 use crate::output;
@@ -201,10 +201,7 @@ fn to_bop(
 }
 
 pub fn run(a: DetectArgs) -> CliResult<()> {
-    let mut sources: Vec<(Value, String)> = params_file(a.common.params.as_deref())?
-        .into_iter()
-        .collect();
-    sources.push((flags_json(&a.common.flags), FLAGS.to_string()));
+    let sources = overlay_sources(&a.common)?;
     let params = params(&sources)?; // bad flags or parameter files fail before a model is read
     let g = gravity(&a)?;
     let jobs = image_jobs(&a.depth, &a.camera)?;

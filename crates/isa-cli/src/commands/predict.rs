@@ -9,7 +9,7 @@ use serde_json::Value;
 use isa_core::vote::{self, DepthImage, Intrinsics};
 use isa_core::{DepthParams, PredictParams, Valid};
 
-use super::{flags_json, load_model, params_file, FLAGS};
+use super::{load_model, overlay_sources};
 use crate::args::{CameraArgs, PredictArgs};
 use crate::error::{CliError, CliResult};
 use crate::inputs;
@@ -183,10 +183,7 @@ pub fn each_image<R>(
 }
 
 pub fn run(a: PredictArgs) -> CliResult<()> {
-    let mut sources: Vec<(Value, String)> = params_file(a.common.params.as_deref())?
-        .into_iter()
-        .collect();
-    sources.push((flags_json(&a.common.flags), FLAGS.to_string()));
+    let sources = overlay_sources(&a.common)?;
     params_over(&Valid::default(), &sources)?; // bad flags or parameter files fail before a model is read
     let jobs = jobs(&a)?;
     let pb = spinner(a.common.run.quiet, format!("loading {}", a.model.display()));
