@@ -219,18 +219,45 @@ pub struct PredictArgs {
     /// Output format.
     #[arg(short, long, value_enum, default_value_t = Format::Json)]
     pub format: Format,
-    /// Output file [default: standard output]; with --format bop a folder gets the file
-    /// bop_toolkit expects, METHOD_DATASET-SPLIT.csv.
-    #[arg(short, long, value_name = "FILE")]
+    #[command(flatten)]
+    pub common: InferenceArgs<PredictFlags>,
+}
+
+/// The options `predict` and `detect` both end with: --output, the command's parameter flags
+/// `F`, --params and the run options. The help of --output and --params is the command's own
+/// ([`ParamFlags`]): what each writes and what its parameter file holds differ. Clap drops the
+/// final period of a one-paragraph doc comment, so those constants end without one.
+#[derive(Args)]
+pub struct InferenceArgs<F: ParamFlags> {
+    #[arg(short, long, value_name = "FILE", help = F::OUTPUT_HELP)]
     pub output: Option<PathBuf>,
     #[command(flatten)]
-    pub flags: PredictFlags,
-    /// JSON file of inference parameters (fields of PredictParams, with mode finding under
-    /// "vote" or flat); flags override it.
-    #[arg(long, value_name = "JSON")]
+    pub flags: F,
+    #[arg(long, value_name = "JSON", help = F::PARAMS_HELP)]
     pub params: Option<PathBuf>,
     #[command(flatten)]
     pub run: RunArgs,
+}
+
+/// A command's parameter flags (serialised, the given ones form the "flags" overlay), with the
+/// help of its --output and --params.
+pub trait ParamFlags: Args + Serialize {
+    const OUTPUT_HELP: &'static str;
+    const PARAMS_HELP: &'static str;
+}
+
+impl ParamFlags for PredictFlags {
+    const OUTPUT_HELP: &'static str = "Output file [default: standard output]; with --format bop \
+        a folder gets the file bop_toolkit expects, METHOD_DATASET-SPLIT.csv";
+    const PARAMS_HELP: &'static str = "JSON file of inference parameters (fields of \
+        PredictParams, with mode finding under \"vote\" or flat); flags override it";
+}
+
+impl ParamFlags for DetectFlags {
+    const OUTPUT_HELP: &'static str = "Output file [default: standard output]";
+    const PARAMS_HELP: &'static str = "JSON file of detection parameters (fields of \
+        DetectParams: nested planes, verify, refine, proposals; null switches verify, refine or \
+        proposals off); flags override it";
 }
 
 /// Inference-parameter flags (flat keys of PredictParams): the given ones form the "flags"
@@ -360,20 +387,8 @@ pub struct DetectArgs {
     /// Output format.
     #[arg(short, long, value_enum, default_value_t = DetectFormat::Json)]
     pub format: DetectFormat,
-    // --output, the flags, --params and the run options are PredictArgs' on purpose (the same
-    // options with this command's own help text, which one flattened struct could not give);
-    // `duplicates` pairs the two lists.
-    /// Output file [default: standard output].
-    #[arg(short, long, value_name = "FILE")]
-    pub output: Option<PathBuf>,
     #[command(flatten)]
-    pub flags: DetectFlags,
-    /// JSON file of detection parameters (fields of DetectParams: nested planes, verify,
-    /// refine, proposals; null switches verify, refine or proposals off); flags override it.
-    #[arg(long, value_name = "JSON")]
-    pub params: Option<PathBuf>,
-    #[command(flatten)]
-    pub run: RunArgs,
+    pub common: InferenceArgs<DetectFlags>,
 }
 
 /// Detection-parameter flags (fields of DetectParams): the given ones form the "flags" overlay.

@@ -49,7 +49,7 @@ pub mod vote;
 pub use depth::{sample_parts, DepthStore, Part};
 pub use error::{IsaError, Result};
 pub use features::{Feature, BACKGROUND_MM};
-pub use forest::{Forest, PartVote, TrainingSet};
+pub use forest::{Forest, PartVote, TrainData, TrainingSet};
 pub use metadata::ModelMetadata;
 pub use params::{
     DepthParams, DetectParams, ForestParams, PredictParams, Quality, Valid, VoteParams,

@@ -247,7 +247,7 @@ impl PyForest {
     ) -> PyResult<()> {
         let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
         self.train(py, defaults, on_tree, |params, threads, hook| {
-            Forest::fit_shards(params, &ShardSet::open(&shards)?, meta, threads, hook)
+            Forest::fit_with_progress(params, &ShardSet::open(&shards)?, meta, threads, hook)
         })
     }
 

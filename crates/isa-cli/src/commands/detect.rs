@@ -11,7 +11,7 @@ use isa_core::scene::{self, Camera, DetectOutput, Ranker, SceneModel, ShapeLibra
 use isa_core::{DetectParams, Forest, Valid};
 
 use super::predict::{each_image, image_jobs, ImageJob};
-use super::{flags_json, load_model, params_file, FLAGS};
+use super::{load_model, overlay_sources};
 use crate::args::{DetectArgs, DetectFormat};
 use crate::error::{CliError, CliResult};
 use crate::output;
@@ -201,12 +201,14 @@ fn to_bop(
 }
 
 pub fn run(a: DetectArgs) -> CliResult<()> {
-    let mut sources: Vec<(Value, String)> = params_file(a.params.as_deref())?.into_iter().collect();
-    sources.push((flags_json(&a.flags), FLAGS.to_string()));
+    let sources = overlay_sources(&a.common)?;
     let params = params(&sources)?; // bad flags or parameter files fail before a model is read
     let g = gravity(&a)?;
     let jobs = image_jobs(&a.depth, &a.camera)?;
-    let pb = spinner(a.run.quiet, format!("loading {} models", a.models.len()));
+    let pb = spinner(
+        a.common.run.quiet,
+        format!("loading {} models", a.models.len()),
+    );
     let models = load_models(&a)?;
     pb.finish_and_clear();
     let ids = obj_ids(&a, &models)?;
@@ -226,11 +228,11 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
             .map_err(|e| CliError::input(e.to_string()))
         })
         .collect::<CliResult<Vec<_>>>()?;
-    let results = each_image(jobs, a.run.quiet, "detecting", |job, d| {
+    let results = each_image(jobs, a.common.run.quiet, "detecting", |job, d| {
         let metres: Vec<f32> = d.mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
         let cam = Camera::new(job.k, d.width, d.height)?;
         let t0 = std::time::Instant::now();
-        let out = with_threads(a.run.threads, || {
+        let out = with_threads(a.common.run.threads, || {
             scene::detect(&metres, cam, &scene_models, g, None, &params)
         })??;
         let secs = t0.elapsed().as_secs_f64();
@@ -246,5 +248,5 @@ pub fn run(a: DetectArgs) -> CliResult<()> {
         DetectFormat::Json => to_json(&models, &params, &results),
         DetectFormat::Bop => to_bop(&models, &ids, a.scene_id, &results)?,
     };
-    output::write(a.output.as_deref(), &text)
+    output::write(a.common.output.as_deref(), &text)
 }

@@ -13,6 +13,7 @@ use serde_json::Value;
 
 use isa_core::Forest;
 
+use crate::args::{InferenceArgs, ParamFlags};
 use crate::error::{CliError, CliResult};
 use crate::inputs::read_json;
 
@@ -37,6 +38,14 @@ pub fn flags_json(flags: &impl Serialize) -> Value {
         o.retain(|_, x| !x.is_null());
     }
     v
+}
+
+/// The overlay sources of `predict` and `detect`, in order: the `--params` file (if given),
+/// then the flags.
+pub fn overlay_sources<F: ParamFlags>(a: &InferenceArgs<F>) -> CliResult<Vec<(Value, String)>> {
+    let mut sources: Vec<(Value, String)> = params_file(a.params.as_deref())?.into_iter().collect();
+    sources.push((flags_json(&a.flags), FLAGS.to_string()));
+    Ok(sources)
 }
 
 pub fn load_model(path: &Path) -> CliResult<Forest> {

@@ -9,7 +9,7 @@ use serde_json::Value;
 use isa_core::vote::{self, DepthImage, Intrinsics};
 use isa_core::{DepthParams, PredictParams, Valid};
 
-use super::{flags_json, load_model, params_file, FLAGS};
+use super::{load_model, overlay_sources};
 use crate::args::{CameraArgs, PredictArgs};
 use crate::error::{CliError, CliResult};
 use crate::inputs;
@@ -183,11 +183,10 @@ pub fn each_image<R>(
 }
 
 pub fn run(a: PredictArgs) -> CliResult<()> {
-    let mut sources: Vec<(Value, String)> = params_file(a.params.as_deref())?.into_iter().collect();
-    sources.push((flags_json(&a.flags), FLAGS.to_string()));
+    let sources = overlay_sources(&a.common)?;
     params_over(&Valid::default(), &sources)?; // bad flags or parameter files fail before a model is read
     let jobs = jobs(&a)?;
-    let pb = spinner(a.run.quiet, format!("loading {}", a.model.display()));
+    let pb = spinner(a.common.run.quiet, format!("loading {}", a.model.display()));
     let forest = load_model(&a.model)?;
     pb.finish_and_clear();
     let params = params_over(&forest.predict_defaults, &sources)?;
@@ -197,14 +196,14 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
             a.model.display()
         )));
     }
-    let results = each_image(jobs, a.run.quiet, "predicting", |job, d| {
+    let results = each_image(jobs, a.common.run.quiet, "predicting", |job, d| {
         let obj_id = match a.format {
             crate::args::Format::Bop => Some(obj_id(&a, &forest, &job)?),
             crate::args::Format::Json => None,
         };
         let img = DepthImage::new(&d.mm, d.width, d.height)?;
         let t0 = Instant::now();
-        let hyps = with_threads(a.run.threads, || {
+        let hyps = with_threads(a.common.run.threads, || {
             vote::predict(&forest, &img, &job.k, &params)
         })??;
         let seconds = t0.elapsed().as_secs_f64();
@@ -220,12 +219,13 @@ pub fn run(a: PredictArgs) -> CliResult<()> {
     })?;
     match a.format {
         crate::args::Format::Json => output::write(
-            a.output.as_deref(),
+            a.common.output.as_deref(),
             &output::predict_json(&a.model, &params, &results),
         ),
         crate::args::Format::Bop => {
             let text = output::bop_csv(&results)?;
             let path = a
+                .common
                 .output
                 .as_deref()
                 .map(|o| output::bop_results_path(o, &a.method, &a.scene))

@@ -56,6 +56,55 @@ pub struct TrainInputs<'a> {
     pub wide: &'a dyn WideTargets,
 }
 
+/// Where [`Forest::fit`] reads its data: an in-memory [`TrainingSet`] or a shard folder opened
+/// with [`ShardSet::open`] (the same forest, to the byte, as from the shards' arrays
+/// concatenated in memory). `&TrainingSet` and `&ShardSet` convert into it with `From`.
+#[derive(Clone, Copy)]
+pub enum TrainData<'a> {
+    Memory(&'a TrainingSet<'a>),
+    Shards(&'a ShardSet),
+}
+
+impl<'a, 'b: 'a> From<&'a TrainingSet<'b>> for TrainData<'a> {
+    fn from(set: &'a TrainingSet<'b>) -> Self {
+        TrainData::Memory(set)
+    }
+}
+
+impl<'a> From<&'a ShardSet> for TrainData<'a> {
+    fn from(set: &'a ShardSet) -> Self {
+        TrainData::Shards(set)
+    }
+}
+
+impl<'a> TrainData<'a> {
+    /// The data as trees read it; an in-memory set's targets are checked first (their counts
+    /// against the parts', then their values).
+    pub fn inputs(self) -> Result<TrainInputs<'a>> {
+        let data = match self {
+            TrainData::Shards(shards) => return Ok(shards.inputs()),
+            TrainData::Memory(data) => data,
+        };
+        let n = data.parts.len();
+        if data.targets.n() != n || data.targets.offsets.len() != 3 * n {
+            return Err(IsaError::InvalidInput(format!(
+                "offsets: expected ({n}, 3) for {n} parts, got {} values",
+                data.targets.offsets.len()
+            )));
+        }
+        if n > 0 {
+            data.targets.validate()?;
+        }
+        Ok(TrainInputs {
+            store: data.store,
+            parts: data.parts,
+            offsets: data.targets.offsets,
+            rotations: data.targets.rotations,
+            wide: &data.targets,
+        })
+    }
+}
+
 /// What [`Forest::prepare`] builds once per training set.
 pub struct Prepared {
     targets: Targets,
@@ -136,11 +185,12 @@ pub fn with_threads<T: Send>(n_threads: Option<usize>, f: impl FnOnce() -> T + S
 }
 
 impl Forest {
-    /// Trains a forest. The model (and its file bytes) depends only on `params` (incl. the
-    /// seed) and the data, not on `n_threads`.
-    pub fn fit(
+    /// Trains a forest on an in-memory [`TrainingSet`] or a [`ShardSet`] (see [`TrainData`]).
+    /// The model (and its file bytes) depends only on `params` (incl. the seed) and the data,
+    /// not on `n_threads`.
+    pub fn fit<'a>(
         params: &Valid<ForestParams>,
-        data: &TrainingSet<'_>,
+        data: impl Into<TrainData<'a>>,
         metadata: ModelMetadata,
         n_threads: Option<usize>,
     ) -> Result<Forest> {
@@ -150,61 +200,21 @@ impl Forest {
     /// [`Forest::fit`], calling `on_tree(trees_done)` after each tree (trees are built one after
     /// the other), e.g. to drive a progress bar. `metadata.training` is set to the data's counts;
     /// the inference defaults are [`PredictParams::default`] (set `predict_defaults` after).
-    pub fn fit_with_progress(
+    pub fn fit_with_progress<'a>(
         params: &Valid<ForestParams>,
-        data: &TrainingSet<'_>,
+        data: impl Into<TrainData<'a>>,
         metadata: ModelMetadata,
         n_threads: Option<usize>,
         on_tree: &(dyn Fn(usize) + Sync),
     ) -> Result<Forest> {
-        let n = data.parts.len();
-        if data.targets.n() != n || data.targets.offsets.len() != 3 * n {
-            return Err(IsaError::InvalidInput(format!(
-                "offsets: expected ({n}, 3) for {n} parts, got {} values",
-                data.targets.offsets.len()
-            )));
-        }
-        if n > 0 {
-            data.targets.validate()?;
-        }
-        let inputs = TrainInputs {
-            store: data.store,
-            parts: data.parts,
-            offsets: data.targets.offsets,
-            rotations: data.targets.rotations,
-            wide: &data.targets,
-        };
-        Self::fit_inputs(params, &inputs, metadata, n_threads, on_tree)
-    }
-
-    /// [`Forest::fit_with_progress`] on a shard folder opened with [`ShardSet::open`]: the same
-    /// forest, to the byte, as from the shards' arrays concatenated in memory.
-    pub fn fit_shards(
-        params: &Valid<ForestParams>,
-        shards: &ShardSet,
-        metadata: ModelMetadata,
-        n_threads: Option<usize>,
-        on_tree: &(dyn Fn(usize) + Sync),
-    ) -> Result<Forest> {
-        Self::fit_inputs(params, &shards.inputs(), metadata, n_threads, on_tree)
-    }
-
-    // The argument list of `fit_with_progress` and `fit_shards` on purpose: both public entry
-    // points end here and differ only in where the data comes from (`duplicates` pairs them).
-    fn fit_inputs(
-        params: &Valid<ForestParams>,
-        data: &TrainInputs<'_>,
-        metadata: ModelMetadata,
-        n_threads: Option<usize>,
-        on_tree: &(dyn Fn(usize) + Sync),
-    ) -> Result<Forest> {
+        let data = data.into().inputs()?;
         with_threads(n_threads, || -> Result<Forest> {
-            let prep = Self::prepare(params, data)?;
+            let prep = Self::prepare(params, &data)?;
             // Trees one after the other, each using every thread (level-wise, see `tree`): the
             // working memory is that of one tree.
             let trees = (0..params.n_trees)
                 .map(|t| {
-                    let tree = Self::fit_tree(params, data, &prep, t)?;
+                    let tree = Self::fit_tree(params, &data, &prep, t)?;
                     on_tree(t + 1);
                     Ok(tree)
                 })
@@ -639,7 +649,8 @@ pub(crate) mod tests {
         let dir =
             crate::shards::tests::write_shards("fit", &crate::shards::tests::split(&ts, &[1]));
         let set = ShardSet::open(&dir).unwrap();
-        let sharded = Forest::fit_shards(&p, &set, Default::default(), Some(1), &|_| {}).unwrap();
+        let sharded =
+            Forest::fit_with_progress(&p, &set, Default::default(), Some(1), &|_| {}).unwrap();
         assert_eq!(sharded.to_bytes(), whole);
         // Trees one at a time, in reverse order, through their bytes, then assembled.
         let prep = Forest::prepare(&p, &set.inputs()).unwrap();
