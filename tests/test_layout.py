@@ -203,3 +203,29 @@ def test_long_files_say_why():
         n = len(path.read_text().splitlines())
         doc = ast.get_docstring(ast.parse(path.read_text())) or ""
         assert n <= MAX_LINES or "Longer than 600 lines:" in doc, f"{name}: {n} lines and no reason at its top"
+
+
+def test_reexports_are_the_modules_all_and_refuse_a_name_exported_twice(tmp_path, monkeypatch):
+    import importlib
+    import sys
+
+    from isa._reexport import lazy_reexport
+
+    for pkg in ("isa.data", "isa.detection", "isa.evaluation", "isa.forest", "isa.privileged", "isa.render"):
+        package = importlib.import_module(pkg)
+        for name in package.__all__:  # each flat name is the object its module defines
+            obj = getattr(package, name)
+            if not isinstance(obj, type(sys)):
+                assert any(getattr(importlib.import_module(f"{pkg}.{m}"), name, None) is obj
+                           for m in package.__all__ if isinstance(getattr(package, m), type(sys)))
+    root = tmp_path / "twice"
+    root.mkdir()
+    (root / "__init__.py").write_text("")
+    (root / "a.py").write_text('__all__ = ["f"]\ndef f(): pass\n')
+    (root / "b.py").write_text('__all__ = ["f"]\ndef f(): pass\n')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    importlib.import_module("twice")
+    from isa.exceptions import DataError
+
+    with pytest.raises(DataError, match="'f' is exported by both a and b"):
+        lazy_reexport("twice", ["a", "b"])

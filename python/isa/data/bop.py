@@ -32,6 +32,12 @@ from isa import atomic
 from isa.camera import Intrinsics, metres_to_mm
 from isa.exceptions import DataError, DataNotFoundError, InvalidValueError
 
+__all__ = [
+    "MAX_DEPTH_UNITS", "write_json", "read_json", "depth_to_png", "png_to_depth", "model_info", "model_path", "write_model", "read_model",
+    "BopFrame", "scene_dir", "SceneWriter", "list_scenes", "list_frames", "read_frame", "read_scene", "FrameSequence", "MappedFrames",
+    "frame_obj_ids", "write_models_info", "read_models_info",
+]
+
 #: Largest depth a uint16 PNG holds with ``depth_scale`` = 1 (millimetres).
 MAX_DEPTH_UNITS = 65535
 

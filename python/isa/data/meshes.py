@@ -15,6 +15,8 @@ import trimesh
 from isa.categories import size_range
 from isa.exceptions import DataError, DataNotFoundError
 
+__all__ = ["MESH_EXTENSIONS", "load_mesh", "object_origin", "real_size_scale", "rescale_to_real_size", "to_object_frame", "prepare_mesh"]
+
 #: File extensions accepted by :func:`load_mesh` (lower case, with the dot).
 MESH_EXTENSIONS: tuple[str, ...] = (".off", ".obj", ".ply", ".stl", ".glb")
 

@@ -12,6 +12,8 @@ from pathlib import Path
 from isa.categories import CATEGORIES, PAPER_INSTANCES, check_category
 from isa.exceptions import DataError, DataNotFoundError
 
+__all__ = ["SPLITS", "Instance", "find_root", "list_instances", "paper_instances", "VALIDATION_INSTANCES", "validation_instances"]
+
 SPLITS: tuple[str, ...] = ("train", "test")
 
 

@@ -56,6 +56,8 @@ from isa.categories import CATEGORIES, check_category
 from isa.data.meshes import object_origin
 from isa.skeleton_graph import SkeletonGraph
 
+__all__ = ["SKELETON_TEMPLATES", "template", "ProceduralObject", "generate", "skeleton_segments", "generate_many"]
+
 # ---------------------------------------------------------------------------------------------
 # Skeleton templates (the same for every instance of a category)
 # ---------------------------------------------------------------------------------------------

@@ -27,6 +27,11 @@ from isa.camera import Intrinsics
 from isa.data.sunrgbd import _read_png16, decode_sun_depth
 from isa.exceptions import DataError, DataNotFoundError
 
+__all__ = [
+    "TUM_UNITS_PER_METRE", "NYU_DISPARITY", "NYU_NO_READING", "NYU_MAX_DEPTH_M", "read_tum_depth", "read_nyu_pgm", "read_nyu_annotated",
+    "read_depth",
+]
+
 #: TUM RGB-D's depth PNGs: units per metre.
 TUM_UNITS_PER_METRE = 5000.0
 #: NYU Depth v2's raw disparity to metres (the NYU toolbox's ``depth_rel2depth_abs``), its

@@ -34,32 +34,7 @@ origin; see :mod:`isa.data.sunrgbd`)."""
 
 from isa._reexport import lazy_reexport
 
-__getattr__, __dir__, __all__ = lazy_reexport(__name__, {
-    "planes": [
-        "PlaneParams", "Plane", "PlaneRemoval", "remove_planes",
-    ],
-    "category_boxes": [
-        "CategoryBox", "category_box", "box_metadata", "model_box",
-    ],
-    "hypotheses": [
-        "DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect_category", "detect_frame",
-    ],
-    "training": [
-        "train_detector",
-    ],
-    "real": [
-        "RealResult", "evaluate_real", "load_real_frames", "real_section",
-    ],
-    "cli": [
-        "main",
-    ],
-    "shapes": ["ShapeLibrary", "shape_library", "bop_shape_library"],
-    "verify": ["VerifyParams", "Verification", "DepthEvidence", "verify_pose"],
-    "proposals": ["ProposalParams"],
-    "ranking": ["Ranker", "fit_ranker", "fit_boosted_ranker"],
-    "refine": ["RefineParams", "Refinement", "refine_pose", "upright_points"],
-    "gravity": ["GravityEstimate", "estimate_gravity"],
-    "background": ["LeafForeground", "fit_leaf_foreground", "weighted_predict"],
-    "multi": ["CategoryModel", "load_model", "DetectParams", "SceneDetection", "DetectResult", "detect",
-              "nms_across", "write_bop_csv"],
-})
+__getattr__, __dir__, __all__ = lazy_reexport(__name__, [
+    "planes", "category_boxes", "hypotheses", "training", "real", "cli", "shapes", "verify", "proposals", "ranking",
+    "refine", "gravity", "background", "multi",
+])

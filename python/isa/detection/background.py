@@ -30,7 +30,7 @@ from isa.detection.shapes import load_npz, save_npz
 from isa.exceptions import DataError, InvalidValueError
 
 __all__ = ["LeafForeground", "fit_leaf_foreground", "labelled_parts", "context_foreground", "depth_mm",
-           "weighted_predict", "main"]
+           "weighted_predict"]  # main: the module's command line, not a package name
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,6 +10,8 @@ import numpy as np
 
 from isa.exceptions import DataError, InvalidValueError
 
+__all__ = ["CategoryBox", "category_box", "box_metadata", "model_box"]
+
 
 @dataclass(frozen=True, eq=False)
 class CategoryBox:

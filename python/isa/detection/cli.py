@@ -13,6 +13,8 @@ from isa.detection.hypotheses import DetectionParams
 from isa.detection.real import _fmt_ap, evaluate_real, load_real_frames, real_section
 from isa.detection.training import train_detector
 
+__all__ = ["main"]
+
 
 def _parse_models(items: Sequence[str]) -> dict[str, str]:
     out = {}

@@ -19,6 +19,8 @@ from isa.detection.planes import PlaneParams, PlaneRemoval, remove_planes
 from isa.evaluation.boxes3d import IOU_THRESHOLD, Box3D, box_from_pose, nms, rot_z
 from isa.exceptions import DataError, DataNotFoundError
 
+__all__ = ["DetectionParams", "upright_rotation", "hypothesis_box", "Detections", "detect_category", "detect_frame"]
+
 
 @dataclass(frozen=True)
 class DetectionParams:

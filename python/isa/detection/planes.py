@@ -16,6 +16,8 @@ from isa.camera import Intrinsics
 from isa.detection.stage_params import StageParams, core_params
 from isa.exceptions import InvalidValueError
 
+__all__ = ["PlaneParams", "Plane", "PlaneRemoval", "remove_planes"]
+
 
 # The fields are the core's section, one per parameter (stage_params.core_params).
 @core_params("planes")

@@ -18,6 +18,8 @@ from isa.detection.planes import Plane
 from isa.evaluation.boxes3d import IOU_THRESHOLD, APResult, Box3D, evaluate_detections, iou_3d
 from isa.exceptions import DataError, InvalidValueError
 
+__all__ = ["RealResult", "evaluate_real", "load_real_frames", "real_section"]
+
 
 @dataclass(eq=False)
 class RealResult:

@@ -18,6 +18,8 @@ import numpy as np
 from isa import atomic
 from isa.exceptions import DataError
 
+__all__ = ["ShapeLibrary", "shape_library", "bop_shape_library"]
+
 #: Surface samples per shape: enough for a dense z-buffer of a 1 m object at 1.5 m in 4 px cells.
 N_POINTS = 3000
 

@@ -6,6 +6,8 @@ from typing import Sequence
 
 from isa.detection.category_boxes import box_metadata, category_box
 
+__all__ = ["train_detector"]
+
 
 def train_detector(category: str, objects: Sequence, views: int = 30, stride: int = 6, forest_params=None,
                    use_ground_truth: bool = False, seed: int = 0, progress: bool = False, intrinsics=None,

@@ -17,6 +17,8 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from isa.exceptions import InvalidValueError
 
+__all__ = ["average_distance", "symmetric_average_distance", "model_points", "model_diameter", "is_correct", "recall", "recall_curve"]
+
 
 def _points(points) -> np.ndarray:
     X = np.asarray(points, float)

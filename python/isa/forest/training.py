@@ -16,6 +16,11 @@ from isa.forest.model import Forest, ForestParams
 from isa.privileged.annotate import Frame, TrainingSet, build_training_set
 from isa.skeleton_graph import SkeletonGraph
 
+__all__ = [
+    "load_frames", "training_set", "PROBE_REACH", "VOTE_BANDWIDTH", "parts_diameter", "scaled_max_offset", "scaled_params",
+    "scaled_predict_defaults", "train_forest",
+]
+
 
 def load_frames(root: Path, split: str, lazy: bool = False) -> list[bop.BopFrame] | bop.FrameSequence:
     """Every frame of a BOP split, in scene then image order; with ``lazy``, a

@@ -27,6 +27,11 @@ from isa.camera import Intrinsics, metres_to_mm
 from isa.exceptions import InvalidTypeError, InvalidValueError
 from isa.skeleton_graph import SkeletonGraph
 
+__all__ = [
+    "project_skeleton", "link_angles", "angle_embedding", "circular_difference", "node_offsets", "rotation_quaternion",
+    "quaternion_to_matrix", "Frame", "TrainingSet", "build_training_set",
+]
+
 # ---------------------------------------------------------------------------------------------
 # Per-view geometry
 # ---------------------------------------------------------------------------------------------

@@ -37,6 +37,11 @@ from scipy.sparse.csgraph import shortest_path
 from isa.exceptions import InvalidTypeError, InvalidValueError
 from isa.skeleton_graph import SkeletonGraph
 
+__all__ = [
+    "normalise", "denormalise", "template_from_ground_truth", "match_skeleton", "calibrate_template", "template_from_instances",
+    "match_graphs_qap",
+]
+
 
 def _bounds(bounds) -> np.ndarray:
     b = np.asarray(bounds, dtype=float)

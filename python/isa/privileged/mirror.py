@@ -22,6 +22,8 @@ from scipy.spatial import cKDTree
 from isa.data import bop
 from isa.exceptions import InvalidParameterError
 
+__all__ = ["SYMMETRY_TOLERANCE", "Mirror", "find_mirror", "mirrored_frame", "with_mirrored"]
+
 #: An instance counts as mirror-symmetric when the mean distance between its surface and its
 #: reflection (20,000 surface samples) is below this fraction of its diameter. On the
 #: ModelNet10 training instances symmetric ones measure 0.2-0.9%, the sampling floor being about

@@ -44,6 +44,8 @@ from skimage.morphology import skeletonize
 from isa.exceptions import InvalidTypeError, InvalidValueError
 from isa.skeleton_graph import SkeletonGraph
 
+__all__ = ["sample_surface", "voxelize_solid", "extract_skeleton", "solid_centre_of_mass"]
+
 # 26-neighbourhood offsets (without the centre).
 _OFFSETS = np.array(
     [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)], dtype=np.int64

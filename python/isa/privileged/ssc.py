@@ -31,6 +31,8 @@ from isa.privileged.matching import match_skeleton
 from isa.privileged.skeleton import extract_skeleton, solid_centre_of_mass
 from isa.skeleton_graph import SkeletonGraph
 
+__all__ = ["centre_of_mass", "SSC", "select_ssc", "CENTRES", "CategorySSC", "fit_category_ssc"]
+
 
 def centre_of_mass(mesh: trimesh.Trimesh, resolution: int = 80, seed: int = 0) -> np.ndarray:
     """COM of ``mesh`` as a uniform solid (robust to open/overlapping ModelNet meshes)."""

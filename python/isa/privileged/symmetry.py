@@ -33,6 +33,11 @@ from isa.evaluation.boxes3d import rot_z
 from isa.exceptions import InvalidParameterError
 from isa.privileged.mirror import SYMMETRY_TOLERANCE
 
+__all__ = [
+    "ORDERS", "YawSymmetry", "find_yaw_symmetry", "recall_ceiling", "canonical_turn", "canonical_pose", "common_subgroup",
+    "canonical_frames",
+]
+
 #: Orders of discrete turn groups that are tested, largest first (C6 before C3 and C2, ...).
 ORDERS = (6, 4, 3, 2)
 #: Turns (degrees) that must all map the surface onto itself for a continuous symmetry (a round

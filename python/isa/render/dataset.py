@@ -37,6 +37,11 @@ from isa.render.noise import KinectNoise, apply_kinect_noise
 from isa.render.views import Views, sample_test_views, training_views
 from isa.skeleton_graph import SkeletonGraph
 
+__all__ = [
+    "ObjectSpec", "RenderSummary", "modelnet_objects", "procedural_objects", "hull_points", "default_views", "default_test_views",
+    "render_dataset",
+]
+
 
 @dataclass
 class ObjectSpec:

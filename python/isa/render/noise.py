@@ -23,6 +23,8 @@ from scipy import ndimage
 
 from isa.camera import Intrinsics
 
+__all__ = ["KinectNoise", "apply_kinect_noise"]
+
 
 @dataclass(frozen=True)
 class KinectNoise:

@@ -36,6 +36,8 @@ import trimesh
 from isa.camera import KINECT_V1, Intrinsics
 from isa.exceptions import InvalidValueError, MissingDependencyError, UsageError
 
+__all__ = ["release_gl", "DepthRenderer", "render_depth", "resolve_backend", "BACKENDS"]
+
 # OpenCV camera (y down, z forward) -> OpenGL camera (y up, z backward).
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 

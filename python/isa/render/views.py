@@ -15,6 +15,10 @@ from isa.camera import KINECT_V1, Intrinsics
 from isa.categories import PAPER_VIEWS
 from isa.exceptions import InvalidValueError
 
+__all__ = [
+    "GOLDEN_ANGLE", "Views", "ViewBand", "look_at", "hemisphere_directions", "fit_distance", "training_views", "sample_test_views",
+]
+
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 

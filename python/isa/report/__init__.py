@@ -2,8 +2,4 @@
 
 from isa._reexport import lazy_reexport
 
-__getattr__, __dir__, __all__ = lazy_reexport(__name__, {
-    "report": [
-        "Report",
-    ],
-}, submodules=("figures",))
+__getattr__, __dir__, __all__ = lazy_reexport(__name__, ["report"], submodules=("figures",))

@@ -13,6 +13,8 @@ from typing import Any, Sequence
 
 from isa import atomic
 
+__all__ = ["Report"]
+
 #: Version of the ``results.json`` layout (docs/results.md); bumped when its schema changes.
 RESULTS_SCHEMA = "isa-results/2"
 
