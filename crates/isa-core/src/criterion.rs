@@ -32,8 +32,6 @@
 //!
 //! (Over 600 lines: one concept, the three terms share the layout and the Cholesky kernels;
 //! the last hundred lines are its tests.)
-//!
-//! Over 600 lines because its unit tests live beside the code they test (`mod tests` below).
 
 // `!(x > y)` is deliberate throughout: it is true for NaN too, which is clamped, never passed on.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

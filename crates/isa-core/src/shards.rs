@@ -19,6 +19,9 @@
 //!
 //! The rows of the set are the shards' rows in manifest order, so a forest trained from shards
 //! is the forest trained from the same arrays concatenated in memory, to the byte.
+//!
+//! Over 600 lines because its unit tests live beside the code they test (`mod tests` below,
+//! shared with the forest's shards-vs-memory test).
 
 use std::fs::File;
 use std::ops::Range;

@@ -12,8 +12,6 @@
 //!
 //! (Over 600 lines: the second half is its tests, which train and traverse a small forest on
 //! the synthetic chair.)
-//!
-//! Over 600 lines because its unit tests live beside the code they test (`mod tests` below).
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
