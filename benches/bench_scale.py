@@ -87,7 +87,7 @@ def child_write(folder: str, k: int) -> None:
     for s in range(k):
         images, p, off, rot, la, no = instance(s, VIEWS)
         name = f"{s:06d}.isat"
-        _core.write_trainset(os.path.join(folder, name), images, p, off, rot, la, no)
+        _core.TrainSet(images, p, off, rot, la, no).write(os.path.join(folder, name))
         names.append(name)
     _core.write_shard_manifest(folder, names)
 
@@ -110,7 +110,7 @@ def child_fit(mode: str, folder: str, k: int, prm: dict) -> None:
         cat = [np.ascontiguousarray(np.concatenate([a[j] for a in arrays])) for j in range(2, 6)]
         del arrays
         n = len(parts)
-        f.fit(images, parts, *cat)
+        f.fit(_core.TrainSet(images, parts, *cat))
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     print(json.dumps({"parts": n, "peak": peak, "start": start, "seconds": time.perf_counter() - t0,
                       "bytes": len(f.to_bytes())}))

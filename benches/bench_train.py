@@ -349,7 +349,7 @@ d = np.load(sys.argv[1], allow_pickle=True)
 images = list(d["images"])
 f = _core.Forest(**json.loads(sys.argv[2]))
 t0 = time.perf_counter(); c0 = time.process_time()
-f.fit(images, d["parts"], d["off"], d["rot"], d["la"], d["no"], "{}")
+f.fit(_core.TrainSet(images, d["parts"], d["off"], d["rot"], d["la"], d["no"]))
 t = time.perf_counter() - t0
 print(json.dumps({"seconds": t, "cpu_seconds": time.process_time() - c0,
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,

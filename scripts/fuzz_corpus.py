@@ -58,11 +58,10 @@ def main(argv: list[str] | None = None) -> None:
     off = rng.normal(0, 0.05, (len(parts), 3)).astype(np.float32)
     q = rng.normal(size=(len(parts), 4))
     rot = (q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32)
-    _core.write_trainset(dirs["trainset_decode"] / "crops.isat", crops, parts, off, rot,
-                         link_angles=rng.normal(size=(len(parts), 2)).astype(np.float32),
-                         metadata='{"category": "chair"}')
+    _core.TrainSet(crops, parts, off, rot, link_angles=rng.normal(size=(len(parts), 2)).astype(np.float32),
+                   metadata='{"category": "chair"}').write(dirs["trainset_decode"] / "crops.isat")
     f = _core.Forest(n_trees=2, max_depth=4, n_candidates=8, min_samples_split=4, min_samples_leaf=2, quality="Q1")
-    f.fit(crops, parts, off, rot, metadata='{"category": "chair"}')
+    f.fit(_core.TrainSet(crops, parts, off, rot), metadata='{"category": "chair"}')
     f.save(dirs["model_decode"] / "crops.isa")
     shutil.copy(ROOT / "tests" / "data" / "model_v1.isa", dirs["model_decode"] / "model_v1.isa")
     for t, d in dirs.items():

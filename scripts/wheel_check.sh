@@ -46,7 +46,7 @@ for i, u, v in parts:
     offsets.append(np.array(centres[i]) - p)
 offsets = np.asarray(offsets, np.float32)
 rotations = np.tile(np.array([1, 0, 0, 0], np.float32), (len(parts), 1))
-_core.write_trainset("plate.isat", images, parts, offsets, rotations)
+_core.TrainSet(images, parts, offsets, rotations).write("plate.isat")
 exe = os.path.join(os.path.dirname(sys.executable), "isa")  # the command pip installed
 run = lambda *a: subprocess.run([exe, *a], capture_output=True, text=True)
 r = run("train", "plate.isat", "-o", "plate.isa", "--quality", "Q1", "--n-trees", "3", "--max-depth", "14", "-q")

@@ -45,7 +45,7 @@ def test_two_threads_writing_two_training_sets_never_swap_data(tmp_path):
     def writer(name: str) -> None:
         images, parts, off, rot = sets[name]
         for _ in range(60):
-            _core.write_trainset(tmp_path / name, images, parts, off, rot, metadata=f'{{"name": "{name}"}}')
+            _core.TrainSet(images, parts, off, rot, metadata=f'{{"name": "{name}"}}').write(tmp_path / name)
             if _core.read_trainset(tmp_path / name)["metadata"] != f'{{"name": "{name}"}}':
                 bad.append(name)
 

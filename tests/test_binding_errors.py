@@ -69,7 +69,7 @@ def test_wrong_types_are_isa_type_errors(fitted):
     _raises(TypeError, lambda: _core.Forest.from_bytes("abc"), "data")
     _raises(TypeError, lambda: _core.Forest.load(123), "path")
     _raises(TypeError, lambda: f._core.save(None), "path")
-    _raises(TypeError, lambda: _core.Forest(**PARAMS).fit(*_set(), metadata=3), "metadata")
+    _raises(TypeError, lambda: _core.Forest(**PARAMS).fit(_core.TrainSet(*_set()), metadata=3), "metadata")
     _raises(TypeError, lambda: _core.sample_parts(images, stride="4"), "stride")
 
 
@@ -111,7 +111,7 @@ def test_values_the_docs_forbid_are_refused(fitted):
         bad = rot.copy()
         bad[3] *= np.float32(scale)
         _raises(ValueError, lambda: Forest(**PARAMS).fit(images, parts, off, bad), "rotations[3]")
-        _raises(ValueError, lambda: _core.write_trainset("/nonexistent/x.isat", images, parts, off, bad), "rotations[3]")
+        _raises(ValueError, lambda: _core.TrainSet(images, parts, off, bad).write("/nonexistent/x.isat"), "rotations[3]")
 
 
 def test_a_forest_shared_by_threads_predicts_while_another_changes_it():
@@ -222,7 +222,7 @@ def test_fit_takes_any_rotation_array_or_names_it(rot):
     norms = np.linalg.norm(rot.astype(np.float64), axis=1) if rot.shape[1] == 4 else None
     ok = norms is not None and bool(np.all(np.abs(norms - 1) <= 1e-3))
     try:
-        _core.Forest(**{**PARAMS, "min_samples_split": 2, "min_samples_leaf": 1}).fit(images, parts, off, rot)
+        _core.Forest(**{**PARAMS, "min_samples_split": 2, "min_samples_leaf": 1}).fit(_core.TrainSet(images, parts, off, rot))
     except IsaError as e:
         assert not ok, f"valid rotations refused: {e}"
         assert "rotations" in str(e), str(e)

@@ -224,8 +224,8 @@ def test_evaluate_real_names_models_without_a_box(tmp_path):
     img = np.full((20, 20), 1500, np.uint16)
     parts = _core.sample_parts([img], stride=4)
     f = _core.Forest(n_trees=1, max_depth=2, min_samples_split=2, min_samples_leaf=1, n_candidates=2, quality="Q1")
-    f.fit([img], parts, np.zeros((len(parts), 3), np.float32), np.tile(np.float32([1, 0, 0, 0]), (len(parts), 1)),
-          metadata=json.dumps({"category": "chair"}))
+    f.fit(_core.TrainSet([img], parts, np.zeros((len(parts), 3), np.float32),
+                         np.tile(np.float32([1, 0, 0, 0]), (len(parts), 1))), metadata=json.dumps({"category": "chair"}))
     path = tmp_path / "nobox.isa"
     f.save(str(path))
     with pytest.raises(DataError, match="nobox.isa: the model's metadata has no 'box'"):

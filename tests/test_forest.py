@@ -91,7 +91,7 @@ def test_on_tree_reports_each_tree_and_its_errors_surface(toy_forest):
     _, (images, parts, off, rot) = toy_forest
     done = []
     f = Forest(**TOY_PARAMS)
-    f.core.fit(images, parts, off, rot, on_tree=done.append)
+    f.core.fit(_core.TrainSet(images, parts, off, rot), on_tree=done.append)
     assert done == [1, 2, 3]
     assert f.to_bytes() == Forest(**TOY_PARAMS).fit(images, parts, off, rot).to_bytes()  # the hook changes nothing
 
@@ -99,7 +99,7 @@ def test_on_tree_reports_each_tree_and_its_errors_surface(toy_forest):
         raise RuntimeError(f"hook failed at tree {k}")
 
     with pytest.raises(RuntimeError, match="tree 1"):
-        Forest(**TOY_PARAMS).core.fit(images, parts, off, rot, on_tree=boom)
+        Forest(**TOY_PARAMS).core.fit(_core.TrainSet(images, parts, off, rot), on_tree=boom)
     Forest(**TOY_PARAMS).fit(images, parts, off, rot, progress=True)  # the tqdm bar drives the hook
 
 

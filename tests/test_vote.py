@@ -4,6 +4,7 @@ find_modes(image_votes), parameter/argument errors, and the training-set file fo
 from __future__ import annotations
 
 import io
+import json
 import struct
 
 import numpy as np
@@ -55,7 +56,7 @@ def plate_training_set(centres=((0.0, 0.0, 1.5), (0.05, -0.03, 1.4), (-0.04, 0.0
 def trained():
     images, parts, offsets, rotations = plate_training_set()
     f = _core.Forest(**FOREST_PARAMS)
-    f.fit(images, parts, offsets, rotations)
+    f.fit(_core.TrainSet(images, parts, offsets, rotations))
     return f, images, parts, offsets, rotations
 
 
@@ -155,11 +156,24 @@ def _entries(raw: bytes) -> dict[str, object]:
     return out
 
 
+def test_a_training_set_brings_its_metadata_to_fit_unless_fit_is_given_one(trained):
+    _, images, parts, offsets, rotations = trained
+    ts = _core.TrainSet(images, parts, offsets, rotations, metadata='{"category": "plate"}')
+    assert len(ts) == len(parts) and ts.n_images == len(images)
+    own, given, other = (_core.Forest(**FOREST_PARAMS) for _ in range(3))
+    own.fit(ts)
+    given.fit(_core.TrainSet(images, parts, offsets, rotations), metadata='{"category": "plate"}')
+    other.fit(ts, metadata='{"category": "disc"}')
+    assert own.to_bytes() == given.to_bytes()
+    assert json.loads(own.metadata)["category"] == "plate"
+    assert json.loads(other.metadata)["category"] == "disc"
+
+
 def test_trainset_file_round_trip_and_numpy_readable(trained, tmp_path):
     _, images, parts, offsets, rotations = trained
     la = np.random.default_rng(1).normal(size=(len(parts), 2)).astype(np.float32)
     path = tmp_path / "t.isat"
-    _core.write_trainset(path, images, parts, offsets, rotations, link_angles=la, metadata='{"category": "plate"}')
+    _core.TrainSet(images, parts, offsets, rotations, link_angles=la, metadata='{"category": "plate"}').write(path)
     back = _core.read_trainset(path)
     assert len(back["images"]) == 3 and all(np.array_equal(a, b) for a, b in zip(back["images"], images))
     for k, want in [("parts", parts), ("offsets", offsets), ("rotations", rotations), ("link_angles", la)]:
@@ -179,4 +193,4 @@ def test_trainset_file_round_trip_and_numpy_readable(trained, tmp_path):
     with pytest.raises(InvalidInputError, match="parts\\[0\\]"):
         p2 = parts.copy()
         p2[0] = [0, 0, 0]  # a corner of the image: no depth there
-        _core.write_trainset(tmp_path / "x.isat", images, p2, offsets, rotations)
+        _core.TrainSet(images, p2, offsets, rotations)

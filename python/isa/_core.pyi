@@ -38,6 +38,7 @@ __all__ = [
     "ShapeLibrary",
     "ShardTrainer",
     "TRAINSET_FORMAT_VERSION",
+    "TrainSet",
     "__version__",
     "_cli_main",
     "_testing",
@@ -56,7 +57,6 @@ __all__ = [
     "sample_parts",
     "verify_pose",
     "write_shard_manifest",
-    "write_trainset",
 ]
 __version__: str
 #: Test hooks (criterion terms, split search): not public API.
@@ -182,22 +182,16 @@ class Forest:
     def __new__(cls, *, n_threads: int | None = None, **params: Any) -> Forest: ...
     def fit(
         self,
-        images: list[npt.NDArray[np.uint16]],
-        parts: npt.NDArray[np.int32],
-        offsets: npt.NDArray[np.float32],
-        rotations: npt.NDArray[np.float32],
-        link_angles: npt.NDArray[np.float32] | None = None,
-        node_offsets: npt.NDArray[np.float32] | None = None,
-        metadata: str = ...,
+        trainset: TrainSet,
+        metadata: str | None = None,
         on_tree: Callable[[int], object] | None = None,
         predict_defaults: dict[str, Any] | None = None,
     ) -> None:
-        """Trains (GIL released). images: uint16 (h, w) mm; parts (P, 3) int32 [image, u, v];
-        offsets (P, 3) m; rotations (P, 4) (w, x, y, z); link_angles (P, L) rad; node_offsets
-        (P, 3N); metadata: a JSON object (category, centre, box, extra keys; a
-        ``predict_defaults`` key in it is read as inference defaults) stored in the model file;
-        predict_defaults: inference defaults (flat keys) overlaid on those; on_tree(trees_done)
-        after each tree (its first exception is raised when training ends)."""
+        """Trains on ``trainset`` (GIL released). metadata: a JSON object (category, centre,
+        box, extra keys; a ``predict_defaults`` key in it is read as inference defaults) stored
+        in the model file, by default the set's own; predict_defaults: inference defaults (flat
+        keys) overlaid on those; on_tree(trees_done) after each tree (its first exception is
+        raised when training ends)."""
     def fit_shards(
         self,
         shards: str | os.PathLike[str],
@@ -314,7 +308,7 @@ def depth_features(
 # model's predict_defaults. Unknown names raise InvalidParameterError. The criterion and
 # split-search test hooks live in the private submodule ``isa._core._testing``.
 
-#: Version of the training-set (.isat) file format written by ``write_trainset``.
+#: Version of the training-set (.isat) file format written by ``TrainSet.write``.
 TRAINSET_FORMAT_VERSION: int
 
 def find_modes(
@@ -331,20 +325,32 @@ def find_modes(
 def default_predict_params() -> dict[str, Any]:
     """The default inference parameters (flat: image-level and mode-finding keys)."""
 
-# Forest.fit's array arguments, on purpose: the file holds what `isa train` fits on.
-def write_trainset(
-    path: str | os.PathLike[str],
-    images: list[npt.NDArray[np.uint16]],
-    parts: npt.NDArray[np.int32],
-    offsets: npt.NDArray[np.float32],
-    rotations: npt.NDArray[np.float32],
-    link_angles: npt.NDArray[np.float32] | None = None,
-    node_offsets: npt.NDArray[np.float32] | None = None,
-    metadata: str = "{}",
-) -> None:
-    """Validates and writes a training-set file (.isat) for ``isa train``: the arguments of
-    ``Forest.fit``. Format: versioned, checksummed container of NPY arrays (see
-    ``isa_core::trainset_io`` and docs/CLI.md). Atomic (temporary file + rename)."""
+class TrainSet:
+    """A training set as ``Forest.fit`` takes it and ``isa train`` reads it (.isat). images:
+    uint16 (h, w) mm crops; parts (P, 3) int32 [image, u, v]; offsets (P, 3) m; rotations
+    (P, 4) (w, x, y, z); link_angles (P, L) rad; node_offsets (P, 3N); metadata: a JSON
+    object. Checked when made (errors name the array); the crops and parts are copied, the
+    targets referenced."""
+
+    def __new__(
+        cls,
+        images: list[npt.NDArray[np.uint16]],
+        parts: npt.NDArray[np.int32],
+        offsets: npt.NDArray[np.float32],
+        rotations: npt.NDArray[np.float32],
+        link_angles: npt.NDArray[np.float32] | None = None,
+        node_offsets: npt.NDArray[np.float32] | None = None,
+        metadata: str = "{}",
+    ) -> TrainSet: ...
+    def __len__(self) -> int:
+        """The number of parts."""
+    @property
+    def n_images(self) -> int:
+        """The number of depth crops."""
+    def write(self, path: str | os.PathLike[str]) -> None:
+        """Writes a training-set file (.isat) for ``isa train``: a versioned, checksummed
+        container of NPY arrays (see ``isa_core::trainset_io`` and docs/CLI.md). Atomic
+        (temporary file + rename)."""
 
 def read_trainset(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Reads a training-set file: ``images`` (list of uint16 arrays), ``parts``, ``offsets``,

@@ -82,7 +82,7 @@ pub enum Command {
 }
 
 /// Train a forest from a training-set file (.isat, written by Python's
-/// `isa._core.write_trainset`) and save it as a model file.
+/// `isa._core.TrainSet.write`) and save it as a model file.
 ///
 /// Training parameters: the defaults of isa_core::ForestParams, overridden by `--params` (a
 /// JSON object with any subset of the fields), overridden by the flags below.

@@ -1,5 +1,5 @@
 //! Training-set files (`.isat`): everything [`Forest::fit`](crate::forest::Forest::fit) needs,
-//! in one versioned, checksummed file that Python writes (`isa._core.write_trainset`) and the
+//! in one versioned, checksummed file that Python writes (`isa._core.TrainSet.write`) and the
 //! `isa train` command reads.
 //!
 //! # Layout (format version 1, little-endian)
@@ -102,15 +102,7 @@ impl TrainSetData {
 
     /// Shapes, finiteness and parts (inside their image, depth > 0); the error names the array.
     pub fn validate(&self) -> Result<()> {
-        let n = self.parts.len();
-        if self.offsets.len() != 3 * n {
-            return Err(IsaError::InvalidInput(format!(
-                "offsets: expected ({n}, 3) for {n} parts, got {} values",
-                self.offsets.len()
-            )));
-        }
-        self.targets().validate()?;
-        self.store.validate_parts(&self.parts)?;
+        self.training_set().validate()?;
         if serde_json::from_str::<serde_json::Value>(&self.metadata).is_err() {
             return Err(IsaError::InvalidInput("metadata: not valid JSON".into()));
         }
@@ -389,7 +381,7 @@ pub fn decode_located(bytes: &[u8], path: &str) -> Result<(TrainSetData, Located
     let bad = |reason: String| IsaError::InvalidInput(format!("training set {path}: {reason}"));
     if bytes.len() < 8 || &bytes[..8] != MAGIC {
         return Err(bad(
-            "not an isa training-set file (bad magic; write it with isa._core.write_trainset)"
+            "not an isa training-set file (bad magic; write it with isa._core.TrainSet.write)"
                 .into(),
         ));
     }

@@ -217,7 +217,7 @@ impl<'py> Targets<'py> {
     }
 }
 
-/// The depth crops and parts of a training set as `Forest.fit` and `write_trainset` take them
+/// The depth crops and parts of a training set as `TrainSet` takes them
 /// (`images`, `parts`), to which [`TrainParts::targets`] adds the per-part targets.
 pub struct TrainParts {
     pub store: DepthStore,

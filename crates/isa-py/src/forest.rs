@@ -22,11 +22,10 @@ use isa_core::shards::{Manifest, ShardSet};
 use isa_core::vote as core_vote;
 use isa_core::{DepthStore, Forest, ForestParams, ModelMetadata, Part, PredictParams, Valid};
 
-use crate::arrays::{
-    as_slice, depth_store, f32_array, matrix, parts as parts_arg, rows, vector, TrainParts,
-};
+use crate::arrays::{as_slice, depth_store, f32_array, matrix, parts as parts_arg, rows, vector};
 use crate::errors::{input_err, to_py};
 use crate::params::{forest_params, json_to_py, kwargs_json};
+use crate::trainset::PyTrainSet;
 use crate::{hypothesis, predict, scalars};
 
 /// A forest of randomised trees voting for the SSC offset and rotation of depth-image parts
@@ -90,6 +89,14 @@ impl PyForest {
 
 fn metadata_arg(o: &Bound<'_, PyAny>) -> PyResult<String> {
     scalars::text(o, "metadata")
+}
+
+fn optional_metadata_arg(o: &Bound<'_, PyAny>) -> PyResult<Option<String>> {
+    if o.is_none() {
+        Ok(None)
+    } else {
+        metadata_arg(o).map(Some)
+    }
 }
 
 impl PyForest {
@@ -202,34 +209,27 @@ impl PyForest {
         Ok(PyForest::new_with(state, n_threads))
     }
 
-    /// Trains the forest (the GIL is released while training). ``metadata``: a JSON object
-    /// (category, centre, box, extra keys; a ``predict_defaults`` key in it is read as
-    /// inference defaults); ``predict_defaults``: inference defaults (flat keys), overlaid on
-    /// those. ``on_tree(trees_done)``, if given, is called after each tree (for a progress bar);
-    /// its first exception is raised once training ends.
-    // Its arguments are `write_trainset`'s on purpose (the file holds what `isa train` fits on;
-    // both convert them with `arrays::TrainParts`); `duplicates` lists the pair.
-    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata=String::from("{}"), on_tree=None, predict_defaults=None))]
-    #[allow(clippy::too_many_arguments)]
+    /// Trains the forest on a ``TrainSet`` (the GIL is released while training).
+    /// ``metadata``: a JSON object (category, centre, box, extra keys; a ``predict_defaults``
+    /// key in it is read as inference defaults), by default the set's own; ``predict_defaults``:
+    /// inference defaults (flat keys), overlaid on those. ``on_tree(trees_done)``, if given, is
+    /// called after each tree (for a progress bar); its first exception is raised once training
+    /// ends.
+    #[pyo3(signature = (trainset, metadata=None, on_tree=None, predict_defaults=None))]
     fn fit(
         &self,
         py: Python<'_>,
-        images: &Bound<'_, PyAny>,
-        parts: &Bound<'_, PyAny>,
-        offsets: &Bound<'_, PyAny>,
-        rotations: &Bound<'_, PyAny>,
-        link_angles: Option<&Bound<'_, PyAny>>,
-        node_offsets: Option<&Bound<'_, PyAny>>,
-        #[pyo3(from_py_with = metadata_arg)] metadata: String,
+        trainset: PyRef<'_, PyTrainSet>,
+        #[pyo3(from_py_with = optional_metadata_arg)] metadata: Option<String>,
         on_tree: Option<Py<PyAny>>,
         predict_defaults: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<()> {
+        let metadata = metadata.unwrap_or_else(|| trainset.metadata().to_string());
         let (meta, defaults) = model_defaults(&metadata, predict_defaults)?;
-        let train = TrainParts::new(images, parts)?;
-        let targets = train.targets(offsets, rotations, link_angles, node_offsets)?;
-        let data = train.training_set(&targets);
-        self.train(py, defaults, on_tree, |params, threads, hook| {
-            Forest::fit_with_progress(params, &data, meta, threads, hook)
+        trainset.with_training_set(py, |data| {
+            self.train(py, defaults, on_tree, |params, threads, hook| {
+                Forest::fit_with_progress(params, data, meta, threads, hook)
+            })
         })
     }
 

@@ -8,42 +8,108 @@ use pyo3::types::{PyDict, PyList};
 
 use isa_core::trainset_io::{self, TrainSetData};
 
-use crate::arrays::{matrix, rows, TrainParts};
+use isa_core::TrainingSet;
+
+use crate::arrays::{given, matrix, rows, TrainParts};
 use crate::errors::to_py;
 
-/// Writes a training-set file (`.isat`, see `isa_core::trainset_io`) for `isa train`: the same
-/// arguments as `Forest.fit` (images: list of (h, w) uint16 crops; parts (P, 3) int32; offsets
-/// (P, 3), rotations (P, 4), link_angles (P, L), node_offsets (P, 3N) float32) plus metadata JSON.
-// Its array arguments are `Forest.fit`'s on purpose (the public API; converted by the same
-// `arrays::TrainParts`).
-#[pyfunction]
-#[pyo3(signature = (path, images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}"))]
-#[allow(clippy::too_many_arguments)]
-pub fn write_trainset(
-    py: Python<'_>,
-    path: PathBuf,
-    images: &Bound<'_, PyAny>,
-    parts: &Bound<'_, PyAny>,
-    offsets: &Bound<'_, PyAny>,
-    rotations: &Bound<'_, PyAny>,
-    link_angles: Option<&Bound<'_, PyAny>>,
-    node_offsets: Option<&Bound<'_, PyAny>>,
-    metadata: &str,
-) -> PyResult<()> {
-    let train = TrainParts::new(images, parts)?;
-    let targets = train.targets(offsets, rotations, link_angles, node_offsets)?;
-    let raw = targets.raw();
-    let owned = |a: Option<(&[f32], usize)>| a.map(|(v, c)| (v.to_vec(), c));
-    let ts = TrainSetData {
-        store: train.store,
-        parts: train.parts,
-        offsets: raw.offsets.to_vec(),
-        rotations: raw.rotations.to_vec(),
-        link_angles: owned(raw.link_angles),
-        node_offsets: owned(raw.node_offsets),
-        metadata: metadata.to_string(),
-    };
-    py.detach(|| trainset_io::write(&ts, &path)).map_err(to_py)
+/// A training set as `Forest.fit` takes it and `isa train` reads it from a `.isat` file:
+/// images (list of (h, w) uint16 crops), parts (P, 3) int32, offsets (P, 3), rotations (P, 4),
+/// link_angles (P, L) and node_offsets (P, 3N) float32 or None, and metadata JSON. Checked
+/// when made; the crops and parts are copied, the per-part targets referenced (converted and
+/// checked again where used), so fitting holds no second copy of them.
+#[pyclass(name = "TrainSet", module = "isa._core", frozen)]
+pub struct PyTrainSet {
+    parts: TrainParts,
+    offsets: Py<PyAny>,
+    rotations: Py<PyAny>,
+    link_angles: Option<Py<PyAny>>,
+    node_offsets: Option<Py<PyAny>>,
+    metadata: String,
+}
+
+impl PyTrainSet {
+    /// The checked targets, borrowed for the span of `run` on the core's training set.
+    pub fn with_training_set<R>(
+        &self,
+        py: Python<'_>,
+        run: impl FnOnce(&TrainingSet<'_>) -> PyResult<R>,
+    ) -> PyResult<R> {
+        let bind = |o: &Option<Py<PyAny>>| o.as_ref().map(|o| o.bind(py).clone());
+        let (la, no) = (bind(&self.link_angles), bind(&self.node_offsets));
+        let targets = self.parts.targets(
+            self.offsets.bind(py),
+            self.rotations.bind(py),
+            la.as_ref(),
+            no.as_ref(),
+        )?;
+        run(&self.parts.training_set(&targets))
+    }
+
+    /// The metadata JSON it was made with.
+    pub fn metadata(&self) -> &str {
+        &self.metadata
+    }
+}
+
+#[pymethods]
+impl PyTrainSet {
+    #[new]
+    #[pyo3(signature = (images, parts, offsets, rotations, link_angles=None, node_offsets=None, metadata="{}"))]
+    fn new(
+        images: &Bound<'_, PyAny>,
+        parts: &Bound<'_, PyAny>,
+        offsets: &Bound<'_, PyAny>,
+        rotations: &Bound<'_, PyAny>,
+        link_angles: Option<&Bound<'_, PyAny>>,
+        node_offsets: Option<&Bound<'_, PyAny>>,
+        metadata: &str,
+    ) -> PyResult<Self> {
+        let train = TrainParts::new(images, parts)?;
+        // Checked now, so a bad array is named where the set is made.
+        let targets = train.targets(offsets, rotations, link_angles, node_offsets)?;
+        train.training_set(&targets).validate().map_err(to_py)?;
+        let own = |o: Option<&Bound<'_, PyAny>>| given(o).map(|o| o.clone().unbind());
+        Ok(PyTrainSet {
+            parts: train,
+            offsets: offsets.clone().unbind(),
+            rotations: rotations.clone().unbind(),
+            link_angles: own(link_angles),
+            node_offsets: own(node_offsets),
+            metadata: metadata.to_string(),
+        })
+    }
+
+    /// The number of parts.
+    fn __len__(&self) -> usize {
+        self.parts.parts.len()
+    }
+
+    /// The number of depth crops.
+    #[getter]
+    fn n_images(&self) -> usize {
+        self.parts.store.len()
+    }
+
+    /// Writes the set as a training-set file (`.isat`, see `isa_core::trainset_io` and
+    /// docs/CLI.md: versioned, checksummed NPY arrays) for `isa train`. Atomic (temporary
+    /// file + rename).
+    fn write(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let ts = self.with_training_set(py, |set| {
+            let raw = &set.targets;
+            let owned = |a: Option<(&[f32], usize)>| a.map(|(v, c)| (v.to_vec(), c));
+            Ok(TrainSetData {
+                store: set.store.clone(),
+                parts: set.parts.to_vec(),
+                offsets: raw.offsets.to_vec(),
+                rotations: raw.rotations.to_vec(),
+                link_angles: owned(raw.link_angles),
+                node_offsets: owned(raw.node_offsets),
+                metadata: self.metadata.clone(),
+            })
+        })?;
+        py.detach(|| trainset_io::write(&ts, &path)).map_err(to_py)
+    }
 }
 
 /// Reads a training-set file back: dict with `images` (list of uint16 arrays), `parts`,
@@ -77,7 +143,7 @@ pub fn read_trainset(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TRAINSET_FORMAT_VERSION", trainset_io::FORMAT_VERSION)?;
-    m.add_function(wrap_pyfunction!(write_trainset, m)?)?;
+    m.add_class::<PyTrainSet>()?;
     m.add_function(wrap_pyfunction!(read_trainset, m)?)?;
     Ok(())
 }

@@ -144,7 +144,7 @@ class Forest:
         """
         meta = _metadata_json(metadata)
         with tqdm(total=self.params.n_trees, desc="train", unit="tree", disable=not progress, leave=False) as bar:
-            self._core.fit(list(images), parts, offsets, rotations, link_angles, node_offsets, meta,
+            self._core.fit(_core.TrainSet(list(images), parts, offsets, rotations, link_angles, node_offsets), meta,
                            on_tree=(lambda done: bar.update(done - bar.n)) if progress else None,
                            predict_defaults=predict_defaults)
         return self

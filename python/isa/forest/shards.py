@@ -32,8 +32,8 @@ def write_shard(path: str | os.PathLike[str], ts: TrainingSet, quality: str) -> 
     """Writes ``ts`` as one shard (atomic). The wide targets are kept unless ``quality`` is
     "Q1", which trains without them (as :func:`isa.pipeline.train_forest` drops them)."""
     wide = quality != "Q1"
-    _core.write_trainset(os.fspath(path), list(ts.images), ts.parts, ts.offsets, ts.rotations,
-                         ts.link_angles if wide else None, ts.node_offsets if wide else None)
+    _core.TrainSet(list(ts.images), ts.parts, ts.offsets, ts.rotations,
+                   ts.link_angles if wide else None, ts.node_offsets if wide else None).write(os.fspath(path))
 
 
 def shard_norms(path: str | os.PathLike[str]) -> np.ndarray | None:

@@ -42,6 +42,28 @@ pub struct TrainingSet<'a> {
     pub targets: RawTargets<'a>,
 }
 
+impl TrainingSet<'_> {
+    /// One row of targets per part.
+    fn check_counts(&self) -> Result<()> {
+        let n = self.parts.len();
+        if self.targets.n() != n || self.targets.offsets.len() != 3 * n {
+            return Err(IsaError::InvalidInput(format!(
+                "offsets: expected ({n}, 3) for {n} parts, got {} values",
+                self.targets.offsets.len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Shapes, finiteness, unit rotations and parts (inside their image, depth > 0): what
+    /// fitting checks, without fitting; the error names the array.
+    pub fn validate(&self) -> Result<()> {
+        self.check_counts()?;
+        self.targets.validate()?;
+        self.store.validate_parts(self.parts)
+    }
+}
+
 /// What the trees read: depth crops, parts, the compact targets, and where the wide targets
 /// (link angles, node offsets; read only while [`Forest::prepare`] builds the criterion's
 /// targets) come from.
@@ -85,14 +107,8 @@ impl<'a> TrainData<'a> {
             TrainData::Shards(shards) => return Ok(shards.inputs()),
             TrainData::Memory(data) => data,
         };
-        let n = data.parts.len();
-        if data.targets.n() != n || data.targets.offsets.len() != 3 * n {
-            return Err(IsaError::InvalidInput(format!(
-                "offsets: expected ({n}, 3) for {n} parts, got {} values",
-                data.targets.offsets.len()
-            )));
-        }
-        if n > 0 {
+        data.check_counts()?;
+        if !data.parts.is_empty() {
             data.targets.validate()?;
         }
         Ok(TrainInputs {
