@@ -325,6 +325,7 @@ def find_modes(
 def default_predict_params() -> dict[str, Any]:
     """The default inference parameters (flat: image-level and mode-finding keys)."""
 
+@final
 class TrainSet:
     """A training set as ``Forest.fit`` takes it and ``isa train`` reads it (.isat). images:
     uint16 (h, w) mm crops; parts (P, 3) int32 [image, u, v]; offsets (P, 3) m; rotations
