@@ -507,9 +507,7 @@ pub fn detect(
     let fps = match (&p.proposals, floor, &planes) {
         (Some(pp), Some(f), Some(_)) if models.iter().any(verified) => {
             let pts = upright_points(&Frame::new(&clean, camera)?, &rg, pp.stride, Some(f), 0.0);
-            let mut fps = footprints(&pts, f, pp);
-            fps.truncate(pp.max_footprints);
-            fps
+            footprints(&pts, f, pp)
         }
         _ => Vec::new(),
     };
