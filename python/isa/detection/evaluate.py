@@ -41,11 +41,15 @@ import json
 import math
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from isa import atomic
 from isa.exceptions import DataError
+
+if TYPE_CHECKING:
+    from isa.detection.multi import DetectParams
 
 __all__ = ["VARIANTS", "variant_params", "run_variant", "found_within", "models_from_args", "main"]
 
@@ -72,19 +76,25 @@ def variant_params(name: str):
     if name == "noproposals":
         return DetectParams(proposals=None)
     if name.startswith("set:"):  # set:key=JSON,section.key=JSON (any detection parameter, for tuning)
-        p = DetectParams()
-        for item in name[4:].split(","):
-            key, _, value = item.partition("=")
-            section, _, sub = key.rpartition(".")
-            v = json.loads(value)
-            p = replace(p, **{sub: v}) if not section else replace(p, **{section: replace(getattr(p, section), **{sub: v})})
-        return p
+        return with_settings(DetectParams(), name[4:])
     if name.startswith("unexplained"):
         from isa.detection.verify import VerifyParams
 
         return DetectParams(verify=VerifyParams(unexplained_weight=float(name[11:])))
     raise DataError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)} "
                     "(turnsN, fwW, unexplainedW for any N, W; set:KEY=JSON,...)")
+
+
+def with_settings(params: DetectParams, spec: str) -> DetectParams:
+    """``params`` with ``spec``'s settings, ``KEY=JSON,section.key=JSON,...`` (e.g.
+    ``max_hypotheses=10,proposals.cell=0.04``)."""
+    for item in spec.split(","):
+        key, _, value = item.partition("=")
+        section, _, sub = key.rpartition(".")
+        v = json.loads(value)
+        params = (replace(params, **{sub: v}) if not section
+                  else replace(params, **{section: replace(getattr(params, section), **{sub: v})}))
+    return params
 
 
 def run_variant(name: str, views, models, progress: bool = True) -> tuple[list[list], list[float]]:
@@ -129,8 +139,8 @@ def found_within(ground_truth, detections, gravity, category: str, min_visib: fl
 
 
 def models_from_args(specs, shapes: Path | None, foreground: Path | None = None, rankers: Path | None = None) -> list:
-    """The models of ``--model CATEGORY=PATH`` arguments, with ``<category>.shapes.npz``,
-    ``<category>.foreground.npz`` and ``<category>.ranker.json`` from the given folders (else
+    """The models of ``--model CATEGORY=PATH`` arguments, with ``<category>.shapes.isl`` (else
+    ``.shapes.npz``), ``<category>.foreground.npz`` and ``<category>.ranker.json`` from the given folders (else
     whatever lies beside each model)."""
     from isa.detection.multi import load_model
 
@@ -143,7 +153,11 @@ def models_from_args(specs, shapes: Path | None, foreground: Path | None = None,
         if fg is not None and not fg.is_file():
             print(f"{cat}: no {fg.name} in {foreground}, its votes are not weighted")
             fg = None
-        models.append(load_model(path, shapes=shapes / f"{cat}.shapes.npz" if shapes else None, category=cat,
+        lib = None
+        if shapes:
+            lib = shapes / f"{cat}.shapes.isl"
+            lib = lib if lib.is_file() else shapes / f"{cat}.shapes.npz"
+        models.append(load_model(path, shapes=lib, category=cat,
                                  foreground=fg, ranker=rankers / f"{cat}.ranker.json" if rankers else None))
     return models
 
@@ -161,7 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--sun", help="SUN RGB-D folder instead (boxes only: the 6D columns are n/a)")
     p.add_argument("--split", default="val")
     p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
-    p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz")
+    p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.isl (or .npz)")
     p.add_argument("--foreground", type=Path,
                    help="folder of <category>.foreground.npz (a category without one votes unweighted)")
     p.add_argument("--rankers", type=Path, help="folder of <category>.ranker.json (default: beside each model)")

@@ -25,13 +25,16 @@ import argparse
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 from scipy.optimize import minimize
 from tqdm import tqdm
 
 from isa import _core, atomic
+
+if TYPE_CHECKING:
+    from isa.detection.multi import DetectParams
 from isa.exceptions import DataError, InvalidValueError, MissingDependencyError
 
 __all__ = ["Ranker", "fit_ranker", "fit_boosted_ranker", "FEATURES"]
@@ -174,18 +177,19 @@ def _check_training_set(category: str, X: np.ndarray, y: np.ndarray, names: Sequ
                                 f"got {int(y.sum())} true of {len(y)}")
 
 
-def detection_outcomes(views, models, progress: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def detection_outcomes(views, models, progress: bool = True,
+                       params: DetectParams | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per category, the features (N, F) of every detection the models (rankers dropped) make in
-    ``views`` (:class:`isa.scenes.benchmark.View`) and whether each is a true object (box IoU
-    0.25, :func:`isa.scenes.scoring.evaluate`; detections of objects too hidden to count are left
-    out)."""
-    from isa.detection.multi import detect
+    ``views`` (:class:`isa.scenes.benchmark.View`) with ``params`` (None: the defaults) and
+    whether each is a true object (box IoU 0.25, :func:`isa.scenes.scoring.evaluate`; detections
+    of objects too hidden to count are left out)."""
+    from isa.detection.multi import DetectParams, detect
     from isa.scenes.scoring import Detection, evaluate
 
     use = [replace(m, ranker=None) for m in models]
     feats, dets = [], []
     for f in tqdm(views, desc="detect", unit="frame", disable=not progress):
-        res = detect(f.depth, f.intrinsics, use, gravity=f.gravity)
+        res = detect(f.depth, f.intrinsics, use, gravity=f.gravity, params=params or DetectParams())
         feats.append([(d.category, d.meta.get("features")) for d in res.detections])
         dets.append([Detection(d.category, d.R, d.t, d.size, d.score, d.box_centre) for d in res.detections])
     cats = [m.category for m in models]
@@ -203,14 +207,15 @@ def detection_outcomes(views, models, progress: bool = True) -> dict[str, tuple[
 
 
 def main(argv: list[str] | None = None) -> None:
-    from isa.detection.evaluate import models_from_args
+    from isa.detection.evaluate import models_from_args, with_settings
+    from isa.detection.multi import DetectParams
     from isa.scenes.benchmark import scene_views
 
     p = argparse.ArgumentParser(prog="python -m isa.detection.ranking", description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", action="append", required=True, help="validation scene root (repeatable: pooled)")
     p.add_argument("--split", default="val")
     p.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
-    p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.npz (default: beside each model)")
+    p.add_argument("--shapes", type=Path, help="folder of <category>.shapes.isl or .npz (default: beside each model)")
     p.add_argument("--kind", choices=("logistic", "boosted"), default="boosted",
                    help="boosted regression trees (the default; they need a few hundred detections per "
                         "category), or linear log-odds")
@@ -219,6 +224,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--depth", type=int, default=2, help="boosted: levels per tree (default 2)")
     p.add_argument("--learning-rate", type=float, default=0.05, help="boosted: shrinkage (default 0.05)")
     p.add_argument("--seed", type=int, default=0, help="boosted: random seed (default 0)")
+    p.add_argument("--set", metavar="KEY=JSON,...", help="detection parameters to fit under, as evaluate's "
+                   "set: variant (e.g. proposals.split_jump=0.1)")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for <category>.ranker.json")
     a = p.parse_args(argv)
     if a.split == "test":
@@ -231,7 +238,7 @@ def main(argv: list[str] | None = None) -> None:
         models.append(replace(m, forest=m.forest.with_leaf_weights(None)))
     views = [v for root in a.scenes for v in scene_views(root, a.split)]
     where = " + ".join(f"{r}/{a.split}" for r in a.scenes)
-    data = detection_outcomes(views, models)
+    data = detection_outcomes(views, models, params=with_settings(DetectParams(), a.set) if a.set else None)
     a.out.mkdir(parents=True, exist_ok=True)
     for cat, (X, y) in data.items():
         on = f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}"
