@@ -23,7 +23,5 @@ class ProposalParams(StageParams):
     score, and a footprint none lends one to carries ``unvoted`` times the weakest hypothesis'
     score (0: it proposes nothing for that category); a footprint longer, higher or lower than
     the category's sizes (the size fit's 15% margin, then ``size_slack`` metres) proposes nothing
-    for it (None: no check); with ``split_jump`` (metres) the pieces a footprint falls into
-    where neighbouring cells' tops differ by more than it are proposed too (None: none).
-    Defaults: the core's."""
+    for it (None: no check). Defaults: the core's."""
 

@@ -218,10 +218,6 @@ pub struct ProposalParams {
     /// this (metres, beyond the size fit's margin) proposes nothing for it; None: no check.
     /// Default 0.1.
     pub size_slack: Option<f64>,
-    /// Also propose the pieces a footprint falls into where neighbouring cells' tops differ by
-    /// more than this (metres): a bed apart from the night stand it touches; None: no pieces.
-    /// Default None.
-    pub split_jump: Option<f64>,
 }
 
 impl Default for ProposalParams {
@@ -237,7 +233,6 @@ impl Default for ProposalParams {
             vote_margin: 0.2,
             unvoted: 0.5,
             size_slack: Some(0.1),
-            split_jump: None,
         }
     }
 }
@@ -248,9 +243,6 @@ impl ProposalParams {
             positive(max_height), non_negative(vote_margin), non_negative(unvoted));
         if let Some(s) = self.size_slack {
             non_negative("proposals.size_slack", s)?;
-        }
-        if let Some(j) = self.split_jump {
-            non_negative("proposals.split_jump", j)?;
         }
         at_least_one(&named!(self, "proposals."; stride, max_footprints))
     }

@@ -507,7 +507,9 @@ pub fn detect(
     let fps = match (&p.proposals, floor, &planes) {
         (Some(pp), Some(f), Some(_)) if models.iter().any(verified) => {
             let pts = upright_points(&Frame::new(&clean, camera)?, &rg, pp.stride, Some(f), 0.0);
-            footprints(&pts, f, pp)
+            let mut fps = footprints(&pts, f, pp);
+            fps.truncate(pp.max_footprints);
+            fps
         }
         _ => Vec::new(),
     };

@@ -94,9 +94,7 @@ impl Footprint {
 /// standing on the floor at height `floor`: points between `clearance` and `max_height` above
 /// it, binned in `cell`-metre cells; cells with `min_cell_points` points or more are occupied,
 /// and 8-connected occupied cells form a footprint, kept when it holds `min_points` points.
-/// The `max_footprints` largest, largest first; then, with `split_jump`, the pieces these
-/// fall into where neighbouring cells' tops differ by more than it (largest first), when a
-/// footprint falls into two or more pieces of `min_points`.
+/// Largest first.
 pub fn footprints(points: &[Vector3<f64>], floor: f64, p: &ProposalParams) -> Vec<Footprint> {
     let kept: Vec<&Vector3<f64>> = points
         .iter()
@@ -114,125 +112,64 @@ pub fn footprints(points: &[Vector3<f64>], floor: f64, p: &ProposalParams) -> Ve
         j * dims[0] + i
     };
     let mut count = vec![0u32; dims[0] * dims[1]];
-    let mut top = vec![f64::NEG_INFINITY; count.len()];
     for q in &kept {
-        let c = cell_of(q);
-        count[c] += 1;
-        top[c] = top[c].max(q.z);
+        count[cell_of(q)] += 1;
     }
-    let occupied: Vec<bool> = count
-        .iter()
-        .map(|&n| n as usize >= p.min_cell_points.max(1))
-        .collect();
-    let whole = Components::label(dims, &count, &occupied, |_, _| true);
-    let rectangles = |comps: &Components, ids: &[usize]| -> Vec<Footprint> {
-        let slot: std::collections::HashMap<usize, usize> =
-            ids.iter().enumerate().map(|(k, &id)| (id, k)).collect();
-        let mut members: Vec<Vec<[f64; 2]>> = vec![Vec::new(); ids.len()];
-        let mut tops = vec![f64::NEG_INFINITY; ids.len()];
-        for q in &kept {
-            if let Some(&k) = slot.get(&comps.label[cell_of(q)]) {
-                members[k].push([q.x, q.y]);
-                tops[k] = tops[k].max(q.z);
-            }
+    let occupied = |c: usize| count[c] as usize >= p.min_cell_points.max(1);
+    // Connected components of the occupied cells (breadth first), numbered in cell order.
+    let mut label = vec![usize::MAX; count.len()];
+    let mut sizes: Vec<usize> = Vec::new();
+    let mut queue = VecDeque::new();
+    for seed in 0..count.len() {
+        if label[seed] != usize::MAX || !occupied(seed) {
+            continue;
         }
-        let mut out: Vec<Footprint> = members
-            .iter()
-            .zip(&tops)
-            .map(|(m, &t)| min_area_rectangle(m, t - floor))
-            .collect();
-        out.sort_by_key(|f| std::cmp::Reverse(f.n_points));
-        out
-    };
-    let mut chosen = whole.large(p.min_points);
-    chosen.sort_by_key(|&id| std::cmp::Reverse(whole.points[id]));
-    chosen.truncate(p.max_footprints);
-    let mut out = rectangles(&whole, &chosen);
-    if let Some(jump) = p.split_jump {
-        let pieces = Components::label(dims, &count, &occupied, |a, b| {
-            (top[a] - top[b]).abs() <= jump
-        });
-        let mut split = Vec::new();
-        for &id in &chosen {
-            let of_it: Vec<usize> = pieces
-                .large(p.min_points)
-                .into_iter()
-                .filter(|&k| whole.label[pieces.seed[k]] == id)
-                .collect();
-            if of_it.len() >= 2 {
-                split.extend(of_it);
-            }
-        }
-        out.extend(rectangles(&pieces, &split));
-    }
-    out
-}
-
-/// Connected components of occupied grid cells (8-neighbours that `joins`), numbered in cell
-/// order: each cell's label (`usize::MAX` when empty), each component's points and first cell.
-struct Components {
-    label: Vec<usize>,
-    points: Vec<usize>,
-    seed: Vec<usize>,
-}
-
-impl Components {
-    fn label(
-        dims: [usize; 2],
-        count: &[u32],
-        occupied: &[bool],
-        joins: impl Fn(usize, usize) -> bool,
-    ) -> Self {
-        let mut label = vec![usize::MAX; count.len()];
-        let (mut points, mut seeds) = (Vec::new(), Vec::new());
-        let mut queue = VecDeque::new();
-        for seed in 0..count.len() {
-            if label[seed] != usize::MAX || !occupied[seed] {
-                continue;
-            }
-            let id = points.len();
-            points.push(0);
-            seeds.push(seed);
-            label[seed] = id;
-            queue.push_back(seed);
-            while let Some(c) = queue.pop_front() {
-                points[id] += count[c] as usize;
-                let (i, j) = ((c % dims[0]) as i64, (c / dims[0]) as i64);
-                for (di, dj) in [
-                    (-1, -1),
-                    (0, -1),
-                    (1, -1),
-                    (-1, 0),
-                    (1, 0),
-                    (-1, 1),
-                    (0, 1),
-                    (1, 1),
-                ] {
-                    let (a, b) = (i + di, j + dj);
-                    if a < 0 || b < 0 || a >= dims[0] as i64 || b >= dims[1] as i64 {
-                        continue;
-                    }
-                    let n = b as usize * dims[0] + a as usize;
-                    if label[n] == usize::MAX && occupied[n] && joins(c, n) {
-                        label[n] = id;
-                        queue.push_back(n);
-                    }
+        let id = sizes.len();
+        sizes.push(0);
+        label[seed] = id;
+        queue.push_back(seed);
+        while let Some(c) = queue.pop_front() {
+            sizes[id] += count[c] as usize;
+            let (i, j) = ((c % dims[0]) as i64, (c / dims[0]) as i64);
+            for (di, dj) in [
+                (-1, -1),
+                (0, -1),
+                (1, -1),
+                (-1, 0),
+                (1, 0),
+                (-1, 1),
+                (0, 1),
+                (1, 1),
+            ] {
+                let (a, b) = (i + di, j + dj);
+                if a < 0 || b < 0 || a >= dims[0] as i64 || b >= dims[1] as i64 {
+                    continue;
+                }
+                let n = b as usize * dims[0] + a as usize;
+                if label[n] == usize::MAX && occupied(n) {
+                    label[n] = id;
+                    queue.push_back(n);
                 }
             }
         }
-        Components {
-            label,
-            points,
-            seed: seeds,
+    }
+    let mut members: Vec<Vec<[f64; 2]>> = vec![Vec::new(); sizes.len()];
+    let mut tops = vec![f64::NEG_INFINITY; sizes.len()];
+    for q in &kept {
+        let l = label[cell_of(q)];
+        if l != usize::MAX && sizes[l] >= p.min_points {
+            members[l].push([q.x, q.y]);
+            tops[l] = tops[l].max(q.z);
         }
     }
-
-    /// The components of `min_points` points or more, in label order.
-    fn large(&self, min_points: usize) -> Vec<usize> {
-        (0..self.points.len())
-            .filter(|&k| self.points[k] >= min_points)
-            .collect()
-    }
+    let mut out: Vec<Footprint> = members
+        .iter()
+        .zip(&tops)
+        .filter(|(m, _)| !m.is_empty())
+        .map(|(m, &top)| min_area_rectangle(m, top - floor))
+        .collect();
+    out.sort_by_key(|f| std::cmp::Reverse(f.n_points));
+    out
 }
 
 /// The smallest-area rectangle (yaw steps of 2 degrees) around the horizontal points `pts` (at
@@ -330,46 +267,6 @@ mod tests {
         assert!(a.fits(&table, 0.15, 0.1) && !a.fits(&chair, 0.15, 0.1));
         // 0.5 m wide but 0.45 m high: lower than 0.85 x 0.75 - 0.1 m, within 0.2 m of it.
         assert!(!b.fits(&chair, 0.15, 0.1) && b.fits(&chair, 0.15, 0.2));
-    }
-
-    #[test]
-    fn a_footprint_splits_where_its_top_jumps() {
-        // A 2.0 x 1.4 m bed, 0.5 m high, touching a 0.45 x 0.45 m night stand 0.65 m high
-        // beside it: one footprint; with a 0.1 m jump also the bed and the stand apart.
-        let mut pts = block([0.0, 3.0], [1.0, 0.7], 0.0, 0.5);
-        pts.extend(block([1.225, 2.5], [0.225, 0.225], 0.0, 0.65));
-        let one = footprints(&pts, 0.0, &ProposalParams::default());
-        assert_eq!(one.len(), 1, "{one:?}");
-        assert!((one[0].half[0] - 1.225).abs() < 0.03, "{:?}", one[0]);
-        let p = ProposalParams {
-            split_jump: Some(0.1),
-            ..ProposalParams::default()
-        };
-        let all = footprints(&pts, 0.0, &p);
-        assert_eq!(all.len(), 3, "{all:?}");
-        assert_eq!(
-            all[0], one[0],
-            "the whole footprint comes first, as without pieces"
-        );
-        let (bed, stand) = (&all[1], &all[2]);
-        for (fp, c, h, t) in [
-            (bed, [0.0, 3.0], [1.0, 0.7], 0.5),
-            (stand, [1.225, 2.5], [0.225, 0.225], 0.65),
-        ] {
-            assert!(
-                (fp.centre[0] - c[0]).abs() < 0.04 && (fp.centre[1] - c[1]).abs() < 0.04,
-                "{fp:?}"
-            );
-            let (lo, hi) = (fp.half[0].min(fp.half[1]), fp.half[0].max(fp.half[1]));
-            assert!(
-                (lo - h[1]).abs() < 0.04 && (hi - h[0]).abs() < 0.04,
-                "{fp:?}"
-            );
-            assert!((fp.top - t).abs() < 1e-9, "{fp:?}");
-        }
-        // A flat block does not split: no pieces are added.
-        let flat = block([0.0, 3.0], [1.0, 0.7], 0.0, 0.5);
-        assert_eq!(footprints(&flat, 0.0, &p).len(), 1);
     }
 
     #[test]
