@@ -82,16 +82,16 @@ def test_settings_overlay_top_level_and_nested_keys_and_the_core_checks_them():
     from isa.detection import DetectParams
     from isa.detection.evaluate import with_settings
 
-    p = with_settings(DetectParams(), "max_hypotheses=10,proposals.split_jump=0.1,refine.fix_height=true")
+    p = with_settings(DetectParams(), "max_hypotheses=10,proposals.cell=0.04,refine.fix_height=true")
     want = DetectParams().to_dict()
     want["max_hypotheses"] = 10
-    want["proposals"]["split_jump"] = 0.1
+    want["proposals"]["cell"] = 0.04
     want["refine"]["fix_height"] = True
     assert p.to_dict() == want
-    # The core validates the overlay when it is used (a negative jump is refused by name).
+    # The core validates the overlay when it is used (a negative cell is refused by name).
     depth = np.full((48, 64), 2.0, np.float32)
-    with pytest.raises(ValueError, match="proposals.split_jump"):
-        _core.detect(depth, KINECT_V1.K, [], params=with_settings(DetectParams(), "proposals.split_jump=-1").to_dict())
+    with pytest.raises(ValueError, match="proposals.cell"):
+        _core.detect(depth, KINECT_V1.K, [], params=with_settings(DetectParams(), "proposals.cell=-1").to_dict())
 
 
 def test_shape_library_isl_roundtrip_and_errors(tmp_path, chairs):

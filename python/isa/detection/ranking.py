@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--learning-rate", type=float, default=0.05, help="boosted: shrinkage (default 0.05)")
     p.add_argument("--seed", type=int, default=0, help="boosted: random seed (default 0)")
     p.add_argument("--set", metavar="KEY=JSON,...", help="detection parameters to fit under, as evaluate's "
-                   "set: variant (e.g. proposals.split_jump=0.1)")
+                   "set: variant (e.g. proposals.cell=0.04)")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for <category>.ranker.json")
     a = p.parse_args(argv)
     if a.split == "test":
