@@ -175,16 +175,3 @@ def test_footprint_proposals_find_an_object_the_forest_gives_no_hypothesis_for()
     best = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams().to_dict())["detections"][0]
     centre = Rg @ (np.asarray(best["R"]) @ np.asarray(best["box_centre"]) + np.asarray(best["t"]))
     assert np.linalg.norm(centre[:2] - truth[:2]) < 0.10, (centre, truth)
-    # Screening the shapes on 200 samples (the best size_shapes then scored on quick_points)
-    # finds the same chair; screening on as many samples as quick_points is no screening.
-    dets = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams().to_dict())["detections"]
-    same = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams(screen_points=1000).to_dict())
-    assert len(same["detections"]) == len(dets)
-    for a, b in zip(same["detections"], dets):
-        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a), (a, b)
-    screened = _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams(screen_points=200).to_dict())
-    top = screened["detections"][0]
-    centre = Rg @ (np.asarray(top["R"]) @ np.asarray(top["box_centre"]) + np.asarray(top["t"]))
-    assert np.linalg.norm(centre[:2] - truth[:2]) < 0.10, (centre, truth)
-    with pytest.raises(ValueError, match="screen_points"):
-        _core.detect(frame, KINECT_V1, [spec], Rg, params=DetectParams(screen_points=0).to_dict())

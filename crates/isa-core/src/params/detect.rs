@@ -284,9 +284,6 @@ pub struct DetectParams {
     pub size_steps: Vec<f64>,
     /// Shapes screened and sized on their first that many samples; None: all. Default 1000.
     pub quick_points: Option<usize>,
-    /// Shapes first screened on this many samples, the best `size_shapes` then scored on
-    /// `quick_points` (a speed option); None: every shape on `quick_points`. Default None.
-    pub screen_points: Option<usize>,
     /// Weight of log(forest score) added to a verified score. Default 0.05.
     pub forest_weight: f64,
     /// Cross-category NMS: IoU above which a box goes. Default 0.25.
@@ -324,7 +321,6 @@ impl Default for DetectParams {
             size_shapes: 3,
             size_steps: vec![0.85, 1.15],
             quick_points: Some(1000),
-            screen_points: None,
             forest_weight: 0.05,
             nms_iou: 0.25,
             nms_overlap: 0.6,
@@ -357,9 +353,6 @@ impl DetectParams {
         }
         if self.quick_points == Some(0) {
             return bad("quick_points", "must be >= 1 or None, got 0".into());
-        }
-        if self.screen_points == Some(0) {
-            return bad("screen_points", "must be >= 1 or None, got 0".into());
         }
         if let Some(s) = self
             .size_steps

@@ -314,45 +314,20 @@ fn score_shapes(
     vp: &VerifyParams,
     p: &DetectParams,
 ) {
-    let pose_of = |s: usize, k: usize| {
-        if k == 0 {
-            (c.r, c.t)
-        } else {
-            let angle = 2.0 * std::f64::consts::PI * k as f64 / p.turns as f64;
-            sc.turned(&c.r, &c.t, angle, &Vector3::from(lib.centre(s)))
-        }
-    };
-    // With `screen_points`, every shape is screened on fewer samples and only the best
-    // `size_shapes` are scored on `quick_points` (the ones the size fit goes on with).
-    let screen = p
-        .screen_points
-        .filter(|&n| p.quick_points.is_none_or(|q| n < q));
-    let first = screen.or(p.quick_points);
     let mut best: Option<(f64, usize, Pose, usize)> = None;
     let mut per_shape = vec![f64::NEG_INFINITY; lib.len()];
     for (s, shape_best) in per_shape.iter_mut().enumerate() {
         for k in 0..p.turns {
-            let (r, t) = pose_of(s, k);
-            let (v, t) = sc.verify_scaled(&r, &t, lib, s, [1.0; 3], vp, first);
+            let (r, t) = if k == 0 {
+                (c.r, c.t)
+            } else {
+                let angle = 2.0 * std::f64::consts::PI * k as f64 / p.turns as f64;
+                sc.turned(&c.r, &c.t, angle, &Vector3::from(lib.centre(s)))
+            };
+            let (v, t) = sc.verify_scaled(&r, &t, lib, s, [1.0; 3], vp, p.quick_points);
             *shape_best = shape_best.max(v.score);
             if best.as_ref().is_none_or(|b| v.score > b.0) {
                 best = Some((v.score, s, (r, t), k));
-            }
-        }
-    }
-    if screen.is_some() {
-        let mut order: Vec<usize> = (0..lib.len()).collect();
-        order.sort_by(|&a, &b| per_shape[b].total_cmp(&per_shape[a]));
-        best = None;
-        for &s in order.iter().take(p.size_shapes.max(1)) {
-            per_shape[s] = f64::NEG_INFINITY;
-            for k in 0..p.turns {
-                let (r, t) = pose_of(s, k);
-                let (v, t) = sc.verify_scaled(&r, &t, lib, s, [1.0; 3], vp, p.quick_points);
-                per_shape[s] = per_shape[s].max(v.score);
-                if best.as_ref().is_none_or(|b| v.score > b.0) {
-                    best = Some((v.score, s, (r, t), k));
-                }
             }
         }
     }
