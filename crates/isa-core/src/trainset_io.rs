@@ -103,10 +103,7 @@ impl TrainSetData {
     /// Shapes, finiteness and parts (inside their image, depth > 0); the error names the array.
     pub fn validate(&self) -> Result<()> {
         self.training_set().validate()?;
-        if serde_json::from_str::<serde_json::Value>(&self.metadata).is_err() {
-            return Err(IsaError::InvalidInput("metadata: not valid JSON".into()));
-        }
-        Ok(())
+        check_metadata(&self.metadata)
     }
 }
 
@@ -315,6 +312,12 @@ enum Entry {
 
 /// Encodes a training set (not validated here: call [`TrainSetData::validate`] first).
 pub fn encode(ts: &TrainSetData) -> Vec<u8> {
+    encode_set(&ts.training_set(), &ts.metadata)
+}
+
+/// Encodes a borrowed training set and its metadata JSON (not validated here).
+pub fn encode_set(set: &TrainingSet<'_>, metadata: &str) -> Vec<u8> {
+    let ts = set;
     let n_img = ts.store.len();
     let mut sizes = Vec::with_capacity(2 * n_img);
     let mut depth = Vec::with_capacity(ts.store.n_pixels());
@@ -329,16 +332,22 @@ pub fn encode(ts: &TrainSetData) -> Vec<u8> {
         ("image_sizes", Entry::Npy(npy_encode(&sizes, &[n_img, 2]))),
         ("depth", Entry::Npy(npy_encode(&depth, &[depth.len()]))),
         ("parts", Entry::Npy(npy_encode(&flat_parts, &[p, 3]))),
-        ("offsets", Entry::Npy(npy_encode(&ts.offsets, &[p, 3]))),
-        ("rotations", Entry::Npy(npy_encode(&ts.rotations, &[p, 4]))),
+        (
+            "offsets",
+            Entry::Npy(npy_encode(ts.targets.offsets, &[p, 3])),
+        ),
+        (
+            "rotations",
+            Entry::Npy(npy_encode(ts.targets.rotations, &[p, 4])),
+        ),
     ];
-    if let Some((a, w)) = &ts.link_angles {
-        entries.push(("link_angles", Entry::Npy(npy_encode(a, &[p, *w]))));
+    if let Some((a, w)) = ts.targets.link_angles {
+        entries.push(("link_angles", Entry::Npy(npy_encode(a, &[p, w]))));
     }
-    if let Some((a, w)) = &ts.node_offsets {
-        entries.push(("node_offsets", Entry::Npy(npy_encode(a, &[p, *w]))));
+    if let Some((a, w)) = ts.targets.node_offsets {
+        entries.push(("node_offsets", Entry::Npy(npy_encode(a, &[p, w]))));
     }
-    entries.push(("metadata", Entry::Text(ts.metadata.clone())));
+    entries.push(("metadata", Entry::Text(metadata.to_string())));
     let framed: Vec<(&str, u8, &[u8])> = entries
         .iter()
         .map(|(name, e)| match e {
@@ -560,8 +569,21 @@ pub fn decode_located(bytes: &[u8], path: &str) -> Result<(TrainSetData, Located
 
 /// Validates and writes a training set atomically ([`crate::atomic`]).
 pub fn write(ts: &TrainSetData, path: &Path) -> Result<()> {
-    ts.validate()?;
-    crate::atomic::write_bytes(path, &encode(ts))
+    write_set(&ts.training_set(), &ts.metadata, path)
+}
+
+/// [`write`] from borrowed arrays (what the Python binding holds), without copying them.
+pub fn write_set(set: &TrainingSet<'_>, metadata: &str, path: &Path) -> Result<()> {
+    set.validate()?;
+    check_metadata(metadata)?;
+    crate::atomic::write_bytes(path, &encode_set(set, metadata))
+}
+
+fn check_metadata(metadata: &str) -> Result<()> {
+    match serde_json::from_str::<serde_json::Value>(metadata) {
+        Ok(_) => Ok(()),
+        Err(_) => Err(IsaError::InvalidInput("metadata: not valid JSON".into())),
+    }
 }
 
 /// Reads and validates a training set.

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use isa_core::trainset_io::{self, TrainSetData};
+use isa_core::trainset_io;
 
 use isa_core::TrainingSet;
 
@@ -95,20 +95,10 @@ impl PyTrainSet {
     /// docs/CLI.md: versioned, checksummed NPY arrays) for `isa train`. Atomic (temporary
     /// file + rename).
     fn write(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        let ts = self.with_training_set(py, |set| {
-            let raw = &set.targets;
-            let owned = |a: Option<(&[f32], usize)>| a.map(|(v, c)| (v.to_vec(), c));
-            Ok(TrainSetData {
-                store: set.store.clone(),
-                parts: set.parts.to_vec(),
-                offsets: raw.offsets.to_vec(),
-                rotations: raw.rotations.to_vec(),
-                link_angles: owned(raw.link_angles),
-                node_offsets: owned(raw.node_offsets),
-                metadata: self.metadata.clone(),
-            })
-        })?;
-        py.detach(|| trainset_io::write(&ts, &path)).map_err(to_py)
+        self.with_training_set(py, |set| {
+            py.detach(|| trainset_io::write_set(set, &self.metadata, &path))
+                .map_err(to_py)
+        })
     }
 }
 
