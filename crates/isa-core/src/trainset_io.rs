@@ -317,34 +317,33 @@ pub fn encode(ts: &TrainSetData) -> Vec<u8> {
 
 /// Encodes a borrowed training set and its metadata JSON (not validated here).
 pub fn encode_set(set: &TrainingSet<'_>, metadata: &str) -> Vec<u8> {
-    let ts = set;
-    let n_img = ts.store.len();
+    let n_img = set.store.len();
     let mut sizes = Vec::with_capacity(2 * n_img);
-    let mut depth = Vec::with_capacity(ts.store.n_pixels());
+    let mut depth = Vec::with_capacity(set.store.n_pixels());
     for i in 0..n_img {
-        let (w, h) = ts.store.dims(i);
+        let (w, h) = set.store.dims(i);
         sizes.extend([h as i32, w as i32]);
-        depth.extend_from_slice(ts.store.image(i).data);
+        depth.extend_from_slice(set.store.image(i).data);
     }
-    let p = ts.parts.len();
-    let flat_parts: Vec<i32> = ts.parts.iter().flatten().copied().collect();
+    let p = set.parts.len();
+    let flat_parts: Vec<i32> = set.parts.iter().flatten().copied().collect();
     let mut entries: Vec<(&str, Entry)> = vec![
         ("image_sizes", Entry::Npy(npy_encode(&sizes, &[n_img, 2]))),
         ("depth", Entry::Npy(npy_encode(&depth, &[depth.len()]))),
         ("parts", Entry::Npy(npy_encode(&flat_parts, &[p, 3]))),
         (
             "offsets",
-            Entry::Npy(npy_encode(ts.targets.offsets, &[p, 3])),
+            Entry::Npy(npy_encode(set.targets.offsets, &[p, 3])),
         ),
         (
             "rotations",
-            Entry::Npy(npy_encode(ts.targets.rotations, &[p, 4])),
+            Entry::Npy(npy_encode(set.targets.rotations, &[p, 4])),
         ),
     ];
-    if let Some((a, w)) = ts.targets.link_angles {
+    if let Some((a, w)) = set.targets.link_angles {
         entries.push(("link_angles", Entry::Npy(npy_encode(a, &[p, w]))));
     }
-    if let Some((a, w)) = ts.targets.node_offsets {
+    if let Some((a, w)) = set.targets.node_offsets {
         entries.push(("node_offsets", Entry::Npy(npy_encode(a, &[p, w]))));
     }
     entries.push(("metadata", Entry::Text(metadata.to_string())));

@@ -32,10 +32,10 @@ from scipy.optimize import minimize
 from tqdm import tqdm
 
 from isa import _core, atomic
+from isa.exceptions import DataError, InvalidValueError, MissingDependencyError
 
 if TYPE_CHECKING:
     from isa.detection.multi import DetectParams
-from isa.exceptions import DataError, InvalidValueError, MissingDependencyError
 
 __all__ = ["Ranker", "fit_ranker", "fit_boosted_ranker", "FEATURES"]
 
