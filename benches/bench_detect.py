@@ -3,12 +3,14 @@ core's path (``isa.detection.detect`` -> ``isa._core.detect``) against the numpy
 replaced (tests/detect_reference, the baseline), measured in the same run.
 
     python benches/bench_detect.py --model chair=chair.isa --model bed=bed.isa ... [--shapes DIR]
-        [--scenes ROOT:SPLIT] [--frames 5] [--repeats 3] [--against PYTHON_DIR] [--core-only]
+        [--rankers DIR] [--scenes ROOT:SPLIT] [--frames 5] [--repeats 3] [--against PYTHON_DIR]
+        [--core-only]
 
 Prints median wall times (ms) per stage (gravity, planes, votes of all categories,
 verification with the size fit and NMS, refinement, total) for three pipelines (no
 verification; verification and size; verification, size and refinement: the default) on each
-path, and the speed-up. Frames come from a scene benchmark folder (``isa.scenes``); without
+path, and the speed-up. ``--rankers DIR`` ranks with ``<category>.ranker.json`` from there (as
+the default pipeline does when models have rankers; the numpy path has no ranking stage). Frames come from a scene benchmark folder (``isa.scenes``); without
 ``--scenes`` a procedural room is made first. ``--shapes DIR`` holds ``<category>.shapes.npz``
 or ``.isl`` (:mod:`isa.detection.shapes`); without it the shapes come from beside each model.
 ``--against DIR`` adds the core path of another checkout (e.g. ``/work/main/python`` with its
@@ -76,7 +78,8 @@ def _inputs(a):
     models = []
     for item in a.model:
         cat, _, path = item.partition("=")
-        models.append(load_model(path, shapes=_shapes(a.shapes, cat), category=cat))
+        ranker = None if a.rankers is None else a.rankers / f"{cat}.ranker.json"
+        models.append(load_model(path, shapes=_shapes(a.shapes, cat), category=cat, ranker=ranker))
     return models, _frames(a.scenes, a.frames)
 
 
@@ -84,6 +87,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", action="append", required=True, metavar="CATEGORY=PATH")
     ap.add_argument("--shapes", type=Path, help="folder of <category>.shapes.isl / .npz")
+    ap.add_argument("--rankers", type=Path, help="folder of <category>.ranker.json")
     ap.add_argument("--scenes", help="ROOT:SPLIT of a scene benchmark (default: one procedural room)")
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=3)
@@ -118,7 +122,7 @@ def main() -> int:
                 worker.stdin.flush()
                 return json.loads(worker.stdout.readline())
             return run
-    keys = ["gravity", "planes", "votes", "verify", "refine", "total"]
+    keys = ["gravity", "planes", "votes", "verify", "refine", "rank", "total"]
     rows = []
     for name, params in pipelines.items():
         per_path: dict[str, list[dict[str, float]]] = {}
@@ -146,15 +150,15 @@ def main() -> int:
     print(f"{len(frames)} frame(s) {w}x{h}, {len(models)} categories ({', '.join(m.category for m in models)}), "
           f"gravity given, median of {a.repeats} runs per frame, then median over frames; ms "
           f"(load average {os.getloadavg()[0]:.1f} at the end)")
-    print(f"| {'pipeline':34s} | {'path':16s} | gravity | planes | votes | verify | refine | total | speed-up |")
-    print("|" + "---|" * 9)
+    print(f"| {'pipeline':34s} | {'path':16s} | gravity | planes | votes | verify | refine | rank | total | speed-up |")
+    print("|" + "---|" * 10)
     base = {}  # the speed-up against the first row of a pipeline, or against --against's
     for name, path, r in rows:
         if path.startswith("core at") or name not in base:
             base[name] = r["total"]
     for name, path, r in rows:
         print(f"| {name:34s} | {path:16s} | {r['gravity']:7.1f} | {r['planes']:6.1f} | {r['votes']:5.1f} | {r['verify']:6.1f} "
-              f"| {r['refine']:6.1f} | {r['total']:5.1f} | {base[name] / r['total']:8.1f} |")
+              f"| {r['refine']:6.1f} | {r['rank']:4.1f} | {r['total']:5.1f} | {base[name] / r['total']:8.1f} |")
     return 0
 
 

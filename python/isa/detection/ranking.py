@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
@@ -64,6 +65,12 @@ class Ranker:
 
     def to_json(self) -> str:
         """The JSON the core reads (checked by it)."""
+        return self._json
+
+    @cached_property
+    def _json(self) -> str:
+        # Made once: detection hands it to the core on every frame, and building it from a
+        # boosted ranker's trees takes longer than ranking does.
         doc = {"format": _core.RANKER_FORMAT, "category": self.category, "features": list(self.features),
                "mean": list(self.mean), "scale": list(self.scale), "weights": list(self.weights),
                "bias": self.bias, "fitted_on": self.fitted_on}

@@ -165,16 +165,32 @@ impl RadiusGrid {
             }
             let c = (cx * self.dims[1] + cy) as usize;
             let (s, e) = (self.start[c] as usize, self.start[c + 1] as usize);
-            let zr = (bound - box2).max(0.0).sqrt() * (1.0 + 1e-9) + 1e-6;
-            let col = &self.z[s..e];
-            let a = s + col.partition_point(|&z| z < q.z - zr);
-            let b = s + col.partition_point(|&z| z <= q.z + zr);
-            for j in a..b {
+            // Outward from the query's height, up then down, until the height difference alone
+            // exceeds the best distance so far (which only shrinks): every point left out is
+            // farther than one already seen.
+            let mid = s + self.z[s..e].partition_point(|&z| z < q.z);
+            let within = |dz: f64, best: &Option<(usize, f64)>| {
+                let bound = best.map_or(r2, |b| b.1.min(r2)) - box2;
+                dz * dz - bound <= 1e-9 * bound.abs() + 1e-12
+            };
+            let mut visit = |j: usize, best: &mut Option<(usize, f64)>| {
                 let d2 = (self.points[j] - q).norm_squared();
                 let i = self.ids[j] as usize;
                 if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
-                    best = Some((i, d2));
+                    *best = Some((i, d2));
                 }
+            };
+            for j in mid..e {
+                if !within(self.z[j] - q.z, &best) {
+                    break;
+                }
+                visit(j, &mut best);
+            }
+            for j in (s..mid).rev() {
+                if !within(q.z - self.z[j], &best) {
+                    break;
+                }
+                visit(j, &mut best);
             }
         }
         best.filter(|b| b.1 < r2).map(|(i, d2)| (i, d2.sqrt()))
