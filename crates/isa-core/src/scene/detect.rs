@@ -360,6 +360,8 @@ fn fit_size(
     for &s in c.shape_order.iter().take(p.size_shapes) {
         let (v, _) = sc.verify_scaled(&c.r, &c.t, lib, s, [1.0; 3], vp, p.quick_points);
         let mut cur = (v.score, [1.0; 3]);
+        // Scales already scored: a later round retries those whose start has not moved since.
+        let mut scored: Vec<([f64; 3], f64)> = Vec::new();
         for _ in 0..SIZE_ROUNDS {
             for axis in 0..3 {
                 for &f in &p.size_steps {
@@ -370,9 +372,17 @@ fn fit_size(
                     if range.is_some_and(|r| !r.admits(scaled, SIZE_MARGIN)) {
                         continue;
                     }
-                    let (v, _) = sc.verify_scaled(&c.r, &c.t, lib, s, trial, vp, p.quick_points);
-                    if v.score > cur.0 {
-                        cur = (v.score, trial);
+                    let score = match scored.iter().find(|x| x.0 == trial) {
+                        Some(x) => x.1,
+                        None => {
+                            let (v, _) =
+                                sc.verify_scaled(&c.r, &c.t, lib, s, trial, vp, p.quick_points);
+                            scored.push((trial, v.score));
+                            v.score
+                        }
+                    };
+                    if score > cur.0 {
+                        cur = (score, trial);
                     }
                 }
             }

@@ -51,9 +51,10 @@ pub fn upright_points(
 }
 
 /// Nearest-neighbour lookups within a fixed radius: the points bucketed in vertical columns
-/// of a dense 2D grid (side `radius / COLUMN_SPLIT`) over their bounds, each column's points
-/// sorted by height, so a query tests only the columns whose footprint meets its ball and, in
-/// each, only the points within the ball's height range (found by bisection).
+/// of a dense 2D grid (side `radius`) over their bounds, each column's points sorted by height,
+/// so a query tests only the 3 x 3 columns around its own and, in each, only the points whose
+/// height is within its best distance so far (scanned outward from its height). Finer columns
+/// were slower: each column visited costs a bisection.
 struct RadiusGrid {
     radius: f64,
     cell: f64,
@@ -66,13 +67,9 @@ struct RadiusGrid {
     ids: Vec<u32>,
 }
 
-/// Columns per radius: finer columns test fewer points (a ball instead of a 3x3 block) at the
-/// cost of more column look-ups.
-const COLUMN_SPLIT: i64 = 1;
-
 impl RadiusGrid {
     fn new(points: &[Vector3<f64>], radius: f64) -> Self {
-        let cell = radius / COLUMN_SPLIT as f64;
+        let cell = radius;
         let lo = points
             .iter()
             .fold([f64::INFINITY; 2], |m, p| [m[0].min(p.x), m[1].min(p.y)]);
@@ -142,58 +139,73 @@ impl RadiusGrid {
         }
         let r2 = self.radius * self.radius;
         let k = self.key(q);
-        let gap = |a: usize, c: i64| {
-            let base = self.lo[a] + c as f64 * self.cell;
-            (base - q[a]).max(q[a] - (base + self.cell)).max(0.0)
+        // The query's distance to the columns one step left / on / right of its own, per axis.
+        let gaps = |a: usize| {
+            [-1, 0, 1].map(|d| {
+                let base = self.lo[a] + (k[a] + d) as f64 * self.cell;
+                (base - q[a]).max(q[a] - (base + self.cell)).max(0.0)
+            })
         };
-        let mut best: Option<(usize, f64)> = None;
-        let reach = COLUMN_SPLIT;
-        let own = std::iter::once((0, 0));
-        let around = (-reach..=reach)
-            .flat_map(|dx| (-reach..=reach).map(move |dy| (dx, dy)))
-            .filter(|&d| d != (0, 0));
-        for (dx, dy) in own.chain(around) {
+        let (gx, gy) = (gaps(0), gaps(1));
+        // (index, squared distance); no index yet: usize::MAX, infinitely far.
+        let mut best = (usize::MAX, f64::INFINITY);
+        // The own column first, then the sides, then the corners: the best distance shrinks
+        // early and prunes the rest.
+        const ORDER: [(i64, i64); 9] = [
+            (0, 0),
+            (-1, 0),
+            (1, 0),
+            (0, -1),
+            (0, 1),
+            (-1, -1),
+            (-1, 1),
+            (1, -1),
+            (1, 1),
+        ];
+        for (dx, dy) in ORDER {
             let (cx, cy) = (k[0] + dx, k[1] + dy);
             if cx < 0 || cy < 0 || cx >= self.dims[0] || cy >= self.dims[1] {
                 continue;
             }
-            let (gx, gy) = (gap(0, cx), gap(1, cy));
-            let box2 = gx * gx + gy * gy;
-            let bound = best.map_or(r2, |b| b.1.min(r2));
-            if box2 - bound > 1e-9 * box2 + 1e-12 {
-                continue;
-            }
             let c = (cx * self.dims[1] + cy) as usize;
             let (s, e) = (self.start[c] as usize, self.start[c + 1] as usize);
+            if s == e {
+                continue;
+            }
+            let (ax, ay) = (gx[(dx + 1) as usize], gy[(dy + 1) as usize]);
+            let box2 = ax * ax + ay * ay;
+            if box2 - best.1.min(r2) > 1e-9 * box2 + 1e-12 {
+                continue;
+            }
             // Outward from the query's height, up then down, until the height difference alone
             // exceeds the best distance so far (which only shrinks): every point left out is
             // farther than one already seen.
-            let mid = s + self.z[s..e].partition_point(|&z| z < q.z);
-            let within = |dz: f64, best: &Option<(usize, f64)>| {
-                let bound = best.map_or(r2, |b| b.1.min(r2)) - box2;
+            let within = |dz: f64, best: f64| {
+                let bound = best.min(r2) - box2;
                 dz * dz - bound <= 1e-9 * bound.abs() + 1e-12
             };
-            let mut visit = |j: usize, best: &mut Option<(usize, f64)>| {
+            let visit = |j: usize, best: &mut (usize, f64)| {
                 let d2 = (self.points[j] - q).norm_squared();
                 let i = self.ids[j] as usize;
-                if best.is_none_or(|b| d2 < b.1 || (d2 == b.1 && i < b.0)) {
-                    *best = Some((i, d2));
+                if d2 < best.1 || (d2 == best.1 && i < best.0) {
+                    *best = (i, d2);
                 }
             };
+            let mid = s + self.z[s..e].partition_point(|&z| z < q.z);
             for j in mid..e {
-                if !within(self.z[j] - q.z, &best) {
+                if !within(self.z[j] - q.z, best.1) {
                     break;
                 }
                 visit(j, &mut best);
             }
             for j in (s..mid).rev() {
-                if !within(q.z - self.z[j], &best) {
+                if !within(q.z - self.z[j], best.1) {
                     break;
                 }
                 visit(j, &mut best);
             }
         }
-        best.filter(|b| b.1 < r2).map(|(i, d2)| (i, d2.sqrt()))
+        (best.1 < r2).then(|| (best.0, best.1.sqrt()))
     }
 }
 

@@ -54,40 +54,53 @@ pub fn visible_points(
     let (w, h) = (cam.width as i64, cam.height as i64);
     let mu = (margin * w as f64) as i64;
     let mv = (margin * h as f64) as i64;
-    // Candidates with their cell (column, row); the front-most per cell on a dense grid over
-    // the cells the points reach (an object covers few), ties to the earlier point.
-    let mut cand: Vec<(i64, i64, f64, usize, i64, i64)> = Vec::with_capacity(points.len());
-    let (mut c0, mut c1, mut r0, mut r1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
-    for (i, p) in points.iter().enumerate() {
+    // Each point's pixel (u: i32::MIN when dropped), kept small: this runs for every shape
+    // sample of every hypothesis.
+    const DROPPED: i32 = i32::MIN;
+    let mut uv: Vec<(i32, i32)> = Vec::with_capacity(points.len());
+    let (mut u0, mut u1, mut v0, mut v1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
+    for p in points {
         let z = p.z;
         if z <= 0.05 {
+            uv.push((DROPPED, 0));
             continue;
         }
         let u = floor_i64(cam.k.fx * p.x / z + cam.k.cx + 0.5);
         let v = floor_i64(cam.k.fy * p.y / z + cam.k.cy + 0.5);
         if u < -mu || u >= w + mu || v < -mv || v >= h + mv {
+            uv.push((DROPPED, 0));
             continue;
         }
-        let (c, r) = ((u + mu) / cell_px, (v + mv) / cell_px);
-        (c0, c1, r0, r1) = (c0.min(c), c1.max(c), r0.min(r), r1.max(r));
-        cand.push((c, r, z, i, u, v));
+        (u0, u1, v0, v1) = (u0.min(u), u1.max(u), v0.min(v), v1.max(v));
+        uv.push((u as i32, v as i32));
     }
-    if cand.is_empty() {
+    if u0 > u1 {
         return vec![];
     }
-    let cols = (c1 - c0 + 1) as usize;
-    let mut best = vec![u32::MAX; cols * (r1 - r0 + 1) as usize];
-    for (k, &(c, r, z, ..)) in cand.iter().enumerate() {
-        let slot = &mut best[(r - r0) as usize * cols + (c - c0) as usize];
-        if *slot == u32::MAX || z < cand[*slot as usize].2 {
+    // The front-most point per cell on a dense grid over the cells the points reach (an object
+    // covers few), ties to the earlier point. Cells count from `margin` outside the image, so
+    // the shifted pixels are non-negative (and the cell of the least pixel is the least cell).
+    let cell = cell_px as u32;
+    let cell_of = |u: i32, m: i64| (u as i64 + m) as u32 / cell;
+    let (c0, r0) = (cell_of(u0 as i32, mu), cell_of(v0 as i32, mv));
+    let cols = (cell_of(u1 as i32, mu) - c0 + 1) as usize;
+    let rows = (cell_of(v1 as i32, mv) - r0 + 1) as usize;
+    let mut best = vec![u32::MAX; cols * rows];
+    for (k, &(u, v)) in uv.iter().enumerate() {
+        if u == DROPPED {
+            continue;
+        }
+        let slot =
+            &mut best[(cell_of(v, mv) - r0) as usize * cols + (cell_of(u, mu) - c0) as usize];
+        if *slot == u32::MAX || points[k].z < points[*slot as usize].z {
             *slot = k as u32;
         }
     }
     best.iter()
         .filter(|&&k| k != u32::MAX)
         .map(|&k| {
-            let (_, _, _, i, u, v) = cand[k as usize];
-            (i, u, v, u >= 0 && u < w && v >= 0 && v < h)
+            let (u, v) = (i64::from(uv[k as usize].0), i64::from(uv[k as usize].1));
+            (k as usize, u, v, u >= 0 && u < w && v >= 0 && v < h)
         })
         .collect()
 }
