@@ -33,6 +33,7 @@ pub use ranking::Ranker;
 pub use shapes::{ShapeLibrary, SizeRange};
 
 use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 
 use crate::error::{IsaError, Result};
 use crate::vote::Intrinsics;
@@ -88,15 +89,29 @@ impl<'a> Frame<'a> {
     pub fn points(&self) -> (Vec<Vector3<f64>>, Vec<usize>) {
         let k = &self.camera.k;
         let w = self.camera.width;
-        let mut pts = Vec::new();
-        let mut idx = Vec::new();
-        for (i, &d) in self.depth.iter().enumerate() {
-            if d > 0.0 {
-                let z = f64::from(d);
-                let p = k.back_project((i % w) as f64, (i / w) as f64, z);
-                pts.push(Vector3::new(p[0], p[1], p[2]));
-                idx.push(i);
-            }
+        // Rows in parallel (a whole frame's pixels), joined in order.
+        let rows: Vec<(Vec<Vector3<f64>>, Vec<usize>)> = self
+            .depth
+            .par_chunks(w)
+            .enumerate()
+            .map(|(v, row)| {
+                let mut pts = Vec::new();
+                let mut idx = Vec::new();
+                for (u, &d) in row.iter().enumerate() {
+                    if d > 0.0 {
+                        let p = k.back_project(u as f64, v as f64, f64::from(d));
+                        pts.push(Vector3::new(p[0], p[1], p[2]));
+                        idx.push(v * w + u);
+                    }
+                }
+                (pts, idx)
+            })
+            .collect();
+        let n = rows.iter().map(|r| r.0.len()).sum();
+        let (mut pts, mut idx) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for (p, i) in rows {
+            pts.extend(p);
+            idx.extend(i);
         }
         (pts, idx)
     }

@@ -353,18 +353,21 @@ pub fn find_planes(
     // -1 none, -2 under the floor, else the plane's index
     let mut labels = vec![-1i64; up.len()];
     let mut planes = Vec::new();
-    let z: Vec<f64> = up.iter().map(|q| q.z).collect();
+    let z: Vec<f64> = up.par_iter().map(|q| q.z).collect();
     if let Some(h) = find_floor(&z, &tol, p, &mut rng).filter(|_| floor) {
-        let mut n_on = 0;
-        for i in 0..up.len() {
-            let dz = z[i] - h;
-            if dz.abs() < tol[i] {
-                labels[i] = 0;
-                n_on += 1;
-            } else if dz <= -tol[i] {
-                labels[i] = -2;
-            }
-        }
+        labels
+            .par_iter_mut()
+            .zip(&z)
+            .zip(&tol)
+            .for_each(|((l, &zi), &ti)| {
+                let dz = zi - h;
+                if dz.abs() < ti {
+                    *l = 0;
+                } else if dz <= -ti {
+                    *l = -2;
+                }
+            });
+        let n_on = labels.par_iter().filter(|&&l| l == 0).count();
         planes.push(Plane {
             kind: PlaneKind::Floor,
             normal: [0.0, 0.0, 1.0],
