@@ -92,6 +92,11 @@ def test_settings_overlay_top_level_and_nested_keys_and_the_core_checks_them():
     depth = np.full((48, 64), 2.0, np.float32)
     with pytest.raises(ValueError, match="proposals.cell"):
         _core.detect(depth, KINECT_V1.K, [], params=with_settings(DetectParams(), "proposals.cell=-1").to_dict())
+    # NMS orders: names the core knows, and ranking everything first only with one joint NMS.
+    with pytest.raises(ValueError, match="nms_order"):
+        _core.detect(depth, KINECT_V1.K, [], params=DetectParams(nms_order="sideways").to_dict())
+    with pytest.raises(ValueError, match="nms_order"):
+        _core.detect(depth, KINECT_V1.K, [], params=DetectParams(rank_before_nms=True, nms_order="ranked").to_dict())
 
 
 def test_shape_library_isl_roundtrip_and_errors(tmp_path, chairs):

@@ -169,3 +169,48 @@ def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room():
             "shapes": lib.core, "size_range": lib.size_range, "ranker": '{"format": 1}'}
     with pytest.raises(IsaError, match=r"models\[0\].ranker"):
         _core.detect(np.ascontiguousarray(depth, np.float32), KINECT_V1, [spec], Rg, params=p.to_dict())
+
+
+@pytest.mark.slow
+def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_probability_decide():
+    """Two chairs in a rendered room and one chair model entered twice, as "chair" and as
+    "toilet": every box has a twin of the other category. ``per_category`` gives, per category,
+    exactly what that model alone gives (one category: NMS within it); ``joint`` leaves no two
+    overlapping boxes, ``ranked`` none overlapping beyond ``cross_iou`` across categories; ``ranked``, with a ranker sure of chairs and one doubting toilets, keeps
+    the chairs of the chair model alone, each with its probability, and no toilet on them."""
+    from dataclasses import replace
+
+    from isa.detection import DetectParams, train_detector
+    from isa.detection.category_boxes import model_box
+    from isa.detection.multi import CategoryModel, detect
+    from isa.detection.shapes import shape_library
+    from isa.evaluation.boxes3d import iou_3d
+    from isa.forest import ForestParams
+    from isa.render.dataset import procedural_objects
+
+    objs = procedural_objects("chair", 3, seed=7)
+    params = ForestParams(n_trees=2, max_depth=10, n_candidates=20, quality="Q1")
+    forest, prepared = train_detector("chair", objs, views=12, stride=8, use_ground_truth=True, forest_params=params)
+    lib = shape_library("chair", prepared.objects)
+    depth, _, Rg = _room(prepared.objects[1].mesh, 0.3, 0.5, 0.6)
+    box = model_box(forest)
+    sure = Ranker("chair", ("agree",), (0.0,), (1.0,), (0.0,), 5.0)
+    doubt = Ranker("toilet", ("agree",), (0.0,), (1.0,), (0.0,), -5.0)
+    chair, toilet = CategoryModel("chair", forest, box, lib, sure), CategoryModel("toilet", forest, box, lib, doubt)
+    p = DetectParams()
+    pose = lambda d: tuple(np.round(np.r_[np.ravel(d.R), d.t], 9))  # noqa: E731
+    alone = {m.category: detect(depth, KINECT_V1, [m], gravity=Rg, params=p).detections for m in (chair, toilet)}
+    assert len(alone["chair"]) >= 2
+    per = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=replace(p, nms_order="per_category")).detections
+    for c in ("chair", "toilet"):
+        assert sorted(pose(d) for d in per if d.category == c) == sorted(map(pose, alone[c]))
+    joint = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=p).detections
+    ranked = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=replace(p, nms_order="ranked")).detections
+    for dets, across in ((joint, p.nms_iou), (ranked, p.cross_iou)):
+        boxes = [(d.category, d.box(Rg)) for d in dets]
+        assert all(iou_3d(a, b) <= (p.nms_iou if ca == cb else across) + 1e-9
+                   for i, (ca, a) in enumerate(boxes) for cb, b in boxes[i + 1:])
+    assert sorted(pose(d) for d in ranked if d.category == "chair") == sorted(map(pose, alone["chair"]))
+    for d in ranked:
+        assert d.score == pytest.approx((sure if d.category == "chair" else doubt).probability(d.meta["features"]))
+    assert [d.score for d in ranked] == sorted((d.score for d in ranked), reverse=True)

@@ -120,7 +120,12 @@ class DetectParams:
     ``nms_iou`` / ``nms_overlap`` the cross-category suppression; ``max_detections`` per frame;
     ``min_score`` drops those with a weaker verified score, before ranking (None: none); ``rank_before_nms`` ranks every candidate
     before NMS (the rankers' probabilities decide overlaps) instead of the kept detections
-    only; ``predict`` further voting keywords.
+    only; ``nms_order`` ``"joint"`` runs one NMS over every category on the verified scores and
+    then ranks what it keeps, ``"ranked"`` runs NMS within each category, ranks those, then NMS
+    across categories on the ranked scores with ``cross_iou`` / ``cross_overlap`` (so a ranker's
+    probability decides between categories), ``"per_category"`` leaves out the NMS across
+    categories (what the rankers of ``"ranked"`` are fitted on, :func:`isa.detection.ranking.detection_outcomes`);
+    ``predict`` further voting keywords.
     Defaults: the core's (``isa._core.DETECT_DEFAULTS``); the nested stages are declared here
     because each is a class of its own."""
 

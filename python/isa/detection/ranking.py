@@ -189,14 +189,18 @@ def detection_outcomes(views, models, progress: bool = True,
     """Per category, the features (N, F) of every detection the models (rankers dropped) make in
     ``views`` (:class:`isa.scenes.benchmark.View`) with ``params`` (None: the defaults) and
     whether each is a true object (box IoU 0.25, :func:`isa.scenes.scoring.evaluate`; detections
-    of objects too hidden to count are left out)."""
+    of objects too hidden to count are left out). With ``nms_order="ranked"`` the detections are
+    those ranking sees there: NMS within each category only (``"per_category"``)."""
     from isa.detection.multi import DetectParams, detect
     from isa.scenes.scoring import Detection, evaluate
 
     use = [replace(m, ranker=None) for m in models]
+    params = params or DetectParams()
+    if params.nms_order == "ranked":
+        params = replace(params, nms_order="per_category")
     feats, dets = [], []
     for f in tqdm(views, desc="detect", unit="frame", disable=not progress):
-        res = detect(f.depth, f.intrinsics, use, gravity=f.gravity, params=params or DetectParams())
+        res = detect(f.depth, f.intrinsics, use, gravity=f.gravity, params=params)
         feats.append([(d.category, d.meta.get("features")) for d in res.detections])
         dets.append([Detection(d.category, d.R, d.t, d.size, d.score, d.box_centre) for d in res.detections])
     cats = [m.category for m in models]

@@ -248,6 +248,30 @@ impl ProposalParams {
     }
 }
 
+/// When non-maximum suppression runs against ranking.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NmsOrder {
+    /// One NMS over every category's boxes on their verified scores, then the kept ones ranked.
+    Joint,
+    /// NMS within each category on the verified scores, those ranked, then NMS across
+    /// categories on the ranked scores: a ranker's probability decides between categories.
+    Ranked,
+    /// NMS within each category, then ranking; no NMS across categories (what the rankers
+    /// of `ranked` are fitted on).
+    PerCategory,
+}
+
+impl NmsOrder {
+    pub fn name(&self) -> &'static str {
+        match self {
+            NmsOrder::Joint => "joint",
+            NmsOrder::Ranked => "ranked",
+            NmsOrder::PerCategory => "per_category",
+        }
+    }
+}
+
 /// The whole detection pipeline (see `isa.detection.multi.DetectParams`).
 // A flat list of typed fields (its JSON form, which the CLI and Python overlay, is this list);
 // `duplicates` pairs runs of it with itself and with other structs by shape alone.
@@ -296,6 +320,13 @@ pub struct DetectParams {
     /// that the probability decides overlaps; else only the detections NMS keeps. Default
     /// false.
     pub rank_before_nms: bool,
+    /// When NMS runs against ranking (without `rank_before_nms`). Default joint.
+    pub nms_order: NmsOrder,
+    /// `ranked`'s NMS across categories: IoU above which a box goes (a chair tucked under a
+    /// table overlaps it by about 0.25). Default 0.5.
+    pub cross_iou: f64,
+    /// ... or the share of a smaller box inside a likelier one; 1: never. Default 1.
+    pub cross_overlap: f64,
     /// Detections whose verified score (before ranking) is weaker are dropped; None: none.
     /// Default None.
     pub min_score: Option<f64>,
@@ -326,6 +357,9 @@ impl Default for DetectParams {
             nms_overlap: 0.6,
             max_detections: 20,
             rank_before_nms: false,
+            nms_order: NmsOrder::Joint,
+            cross_iou: 0.5,
+            cross_overlap: 1.0,
             min_score: None,
             predict: Default::default(),
         }
@@ -362,10 +396,24 @@ impl DetectParams {
             return bad("size_steps", format!("must be finite and > 0, got {s}"));
         }
         non_negative("forest_weight", self.forest_weight)?;
-        for (n, x) in [("nms_iou", self.nms_iou), ("nms_overlap", self.nms_overlap)] {
+        for (n, x) in [
+            ("nms_iou", self.nms_iou),
+            ("nms_overlap", self.nms_overlap),
+            ("cross_iou", self.cross_iou),
+            ("cross_overlap", self.cross_overlap),
+        ] {
             if !(0.0..=1.0).contains(&x) {
                 return bad(n, format!("must be in [0, 1], got {x}"));
             }
+        }
+        if self.rank_before_nms && self.nms_order != NmsOrder::Joint {
+            return bad(
+                "nms_order",
+                format!(
+                    "must be \"joint\" with rank_before_nms, got {:?}",
+                    self.nms_order.name()
+                ),
+            );
         }
         if let Some(m) = self.min_score {
             if m.is_nan() {

@@ -20,7 +20,8 @@ mod predict;
 
 pub use depth::{DepthParams, DEPTH_SCALE_HELP};
 pub use detect::{
-    DetectParams, PlaneParams, ProposalParams, RefineParams, VerifyParams, DEPTH_TOLERANCE,
+    DetectParams, NmsOrder, PlaneParams, ProposalParams, RefineParams, VerifyParams,
+    DEPTH_TOLERANCE,
 };
 pub use forest::{ForestParams, Quality};
 pub use overlay::overlay_json;

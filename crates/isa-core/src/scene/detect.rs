@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde_json::Value;
 
 use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource};
-use super::nms::{nms_across, UprightBox};
+use super::nms::{nms_across, nms_within, UprightBox};
 use super::planes::{find_planes, Planes};
 use super::proposals::{footprints, Footprint};
 use super::ranking::{features, Ranker, FEATURES};
@@ -25,7 +25,7 @@ use super::verify::{verify_pose, Evidence, Verification};
 use super::{rot_z, rows, yaw_of, Camera, Frame};
 use crate::error::{IsaError, Result};
 use crate::forest::Forest;
-use crate::params::{DetectParams, ProposalParams, Valid, VerifyParams};
+use crate::params::{DetectParams, NmsOrder, ProposalParams, Valid, VerifyParams};
 use crate::vote::{depth_m_to_mm, predict_parts, DepthImage, Hypothesis, ImageParts};
 
 /// Margin (a fraction) by which a fitted size may leave the category's real-world range.
@@ -663,12 +663,30 @@ pub fn detect(
             lap("nms", &mut secs);
             keep.into_iter().map(|i| ranked[i].clone()).collect()
         }
-        Some(vp) => {
+        Some(vp) if p.nms_order == NmsOrder::Joint => {
             let keep = nms(&dets);
             lap("nms", &mut secs);
             let ranked = rank(&dets, &owner, &keep, models, &sc, vp);
             lap("rank", &mut secs);
             ranked
+        }
+        Some(vp) => {
+            // Within each category first (its best `max_detections`).
+            let boxes: Vec<UprightBox> = dets.iter().map(|d| upright_box(d, &rg)).collect();
+            let model: Vec<usize> = owner.iter().map(|o| o.1).collect();
+            let keep = nms_within(&boxes, &model, p.nms_iou, p.nms_overlap, p.max_detections);
+            lap("nms", &mut secs);
+            let ranked = rank(&dets, &owner, &keep, models, &sc, vp);
+            lap("rank", &mut secs);
+            if p.nms_order == NmsOrder::Ranked {
+                let boxes: Vec<UprightBox> = ranked.iter().map(|d| upright_box(d, &rg)).collect();
+                let mut keep = nms_across(&boxes, p.cross_iou, p.cross_overlap);
+                keep.truncate(p.max_detections);
+                lap("nms_across", &mut secs);
+                keep.into_iter().map(|i| ranked[i].clone()).collect()
+            } else {
+                ranked
+            }
         }
         None => {
             let keep = nms(&dets);

@@ -127,6 +127,31 @@ pub fn nms_across(boxes: &[UprightBox], max_iou: f64, max_overlap: f64) -> Vec<u
     kept
 }
 
+/// [`nms_across`] within each group (`group[i]` of box `i`, e.g. its category) only, at most
+/// `max_per_group` kept in each: the kept indices of every group, best score first.
+pub fn nms_within(
+    boxes: &[UprightBox],
+    group: &[usize],
+    max_iou: f64,
+    max_overlap: f64,
+    max_per_group: usize,
+) -> Vec<usize> {
+    let mut groups: Vec<usize> = group.to_vec();
+    groups.sort_unstable();
+    groups.dedup();
+    let mut keep: Vec<usize> = Vec::new();
+    for g in groups {
+        let mine: Vec<usize> = (0..boxes.len()).filter(|&i| group[i] == g).collect();
+        let b: Vec<UprightBox> = mine.iter().map(|&i| boxes[i]).collect();
+        let mut k = nms_across(&b, max_iou, max_overlap);
+        k.truncate(max_per_group);
+        keep.extend(k.into_iter().map(|j| mine[j]));
+    }
+    // Stable: ties keep the group order.
+    keep.sort_by(|&a, &b| boxes[b].score.total_cmp(&boxes[a].score));
+    keep
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -166,5 +191,26 @@ mod tests {
         let table = b(3.0, 0.0, [1.2, 0.8, 0.75], 0.0, 0.3); // elsewhere: stays
         let boxes = [toilet_in_chair, bed, chair, table, chair_shifted];
         assert_eq!(nms_across(&boxes, 0.25, 0.6), vec![2, 1, 3]);
+    }
+
+    /// Within groups, an overlapping box of another group stays (across groups it would go);
+    /// duplicates within a group go, and each group keeps at most its share.
+    #[test]
+    fn nms_within_groups_leaves_other_groups_alone() {
+        let chair = b(0.0, 0.0, [0.5, 0.5, 0.9], 0.0, 0.9);
+        let chair_dup = b(0.05, 0.0, [0.5, 0.5, 0.9], 0.1, 0.8);
+        let toilet = b(0.02, 0.0, [0.45, 0.6, 0.8], 0.0, 0.95);
+        let far = b(3.0, 0.0, [0.5, 0.5, 0.9], 0.0, 0.5);
+        let boxes = [chair, chair_dup, toilet, far];
+        assert_eq!(nms_across(&boxes, 0.25, 0.6), vec![2, 3]);
+        assert_eq!(
+            nms_within(&boxes, &[0, 0, 1, 0], 0.25, 0.6, 10),
+            vec![2, 0, 3]
+        );
+        assert_eq!(nms_within(&boxes, &[0, 0, 1, 0], 0.25, 0.6, 1), vec![2, 0]);
+        assert_eq!(
+            nms_within(&boxes, &[0, 1, 2, 3], 0.25, 0.6, 10),
+            vec![2, 0, 1, 3]
+        );
     }
 }
