@@ -10,8 +10,9 @@ Prints median wall times (ms) per stage (gravity, planes, votes of all categorie
 verification with the size fit and NMS, refinement, total) for three pipelines (no
 verification; verification and size; verification, size and refinement: the default) on each
 path, and the speed-up. ``--rankers DIR`` ranks with ``<category>.ranker.json`` from there (as
-the default pipeline does when models have rankers; the numpy path has no ranking stage). Frames come from a scene benchmark folder (``isa.scenes``); without
-``--scenes`` a procedural room is made first. ``--shapes DIR`` holds ``<category>.shapes.npz``
+the default pipeline does when models have rankers; the numpy path has no ranking stage).
+Frames come from a scene benchmark folder (``isa.scenes``); without ``--scenes`` a procedural
+room is made first. ``--shapes DIR`` holds ``<category>.shapes.npz``
 or ``.isl`` (:mod:`isa.detection.shapes`); without it the shapes come from beside each model.
 ``--against DIR`` adds the core path of another checkout (e.g. ``/work/main/python`` with its
 built extension) as a row: it runs in a worker process fed the same frames, each repeat of a

@@ -176,8 +176,9 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     """Two chairs in a rendered room and one chair model entered twice, as "chair" and as
     "toilet": every box has a twin of the other category. ``per_category`` gives, per category,
     exactly what that model alone gives (one category: NMS within it); ``joint`` leaves no two
-    overlapping boxes, ``ranked`` none overlapping beyond ``cross_iou`` across categories; ``ranked``, with a ranker sure of chairs and one doubting toilets, keeps
-    the chairs of the chair model alone, each with its probability, and no toilet on them."""
+    overlapping boxes, ``ranked`` none overlapping beyond ``cross_iou`` across categories; and
+    ``ranked``, with a ranker sure of chairs and one doubting toilets, keeps the chairs of the
+    chair model alone, each with its probability, and no toilet on them."""
     from dataclasses import replace
 
     from isa.detection import DetectParams, train_detector
