@@ -161,7 +161,8 @@ pub fn verify_pose(
         let zm = pc[i].z;
         let tol = base.max(k * zm * zm);
         let (mut ag, mut any_valid, mut hidden) = (false, false, false);
-        for &dv in &offs {
+        // One agreeing pixel decides the cell: the rest of its grid is not looked at.
+        'grid: for &dv in &offs {
             let v = v0 + dv;
             for &du in &offs {
                 let u = u0 + du;
@@ -180,8 +181,10 @@ pub fn verify_pose(
                 let plane = ev.planes.is_some_and(|p| p[pix]);
                 if plane {
                     hidden |= near;
+                } else if near {
+                    ag = true;
+                    break 'grid;
                 } else {
-                    ag |= near;
                     hidden |= d <= -tol;
                 }
             }
