@@ -97,16 +97,11 @@ def test_ranker_file_roundtrip_and_errors(tmp_path):
         assert "bad.json" in str(e.value) and isinstance(e.value, IsaError)
 
 
-@pytest.mark.slow
-def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room():
-    """Two chairs in a rendered room. Without a ranker every detection carries its features, and
-    a refined one (verified with all its shape's points, as ranking does) scores the
-    `verify_score` feature plus the forest term; with a ranker, each score is
-    the ranker's probability of its features (computed here in Python) and the list is sorted by
-    it."""
-    from isa.detection import DetectParams, train_detector
-    from isa.detection.category_boxes import model_box
-    from isa.detection.multi import CategoryModel, detect
+@pytest.fixture(scope="module")
+def chair_room():
+    """A small chair forest and shape library trained on 3 procedural chairs, and a rendered
+    room with two of them: (forest, library, depth, gravity)."""
+    from isa.detection import train_detector
     from isa.detection.shapes import shape_library
     from isa.forest import ForestParams
     from isa.render.dataset import procedural_objects
@@ -116,6 +111,21 @@ def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room():
     forest, prepared = train_detector("chair", objs, views=12, stride=8, use_ground_truth=True, forest_params=params)
     lib = shape_library("chair", prepared.objects)
     depth, _, Rg = _room(prepared.objects[1].mesh, 0.3, 0.5, 0.6)
+    return forest, lib, depth, Rg
+
+
+@pytest.mark.slow
+def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room(chair_room):
+    """Two chairs in a rendered room. Without a ranker every detection carries its features, and
+    a refined one (verified with all its shape's points, as ranking does) scores the
+    `verify_score` feature plus the forest term; with a ranker, each score is
+    the ranker's probability of its features (computed here in Python) and the list is sorted by
+    it."""
+    from isa.detection import DetectParams
+    from isa.detection.category_boxes import model_box
+    from isa.detection.multi import CategoryModel, detect
+
+    forest, lib, depth, Rg = chair_room
     model = CategoryModel("chair", forest, model_box(forest), lib)
     p = DetectParams()
     plain = detect(depth, KINECT_V1, [model], gravity=Rg, params=p).detections
@@ -172,7 +182,7 @@ def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room():
 
 
 @pytest.mark.slow
-def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_probability_decide():
+def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_probability_decide(chair_room):
     """Two chairs in a rendered room and one chair model entered twice, as "chair" and as
     "toilet": every box has a twin of the other category. ``per_category`` gives, per category,
     exactly what that model alone gives (one category: NMS within it); ``joint`` leaves no two
@@ -181,19 +191,12 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     chair model alone, each with its probability, and no toilet on them."""
     from dataclasses import replace
 
-    from isa.detection import DetectParams, train_detector
+    from isa.detection import DetectParams
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel, detect
-    from isa.detection.shapes import shape_library
     from isa.evaluation.boxes3d import iou_3d
-    from isa.forest import ForestParams
-    from isa.render.dataset import procedural_objects
 
-    objs = procedural_objects("chair", 3, seed=7)
-    params = ForestParams(n_trees=2, max_depth=10, n_candidates=20, quality="Q1")
-    forest, prepared = train_detector("chair", objs, views=12, stride=8, use_ground_truth=True, forest_params=params)
-    lib = shape_library("chair", prepared.objects)
-    depth, _, Rg = _room(prepared.objects[1].mesh, 0.3, 0.5, 0.6)
+    forest, lib, depth, Rg = chair_room
     box = model_box(forest)
     sure = Ranker("chair", ("agree",), (0.0,), (1.0,), (0.0,), 5.0)
     doubt = Ranker("toilet", ("agree",), (0.0,), (1.0,), (0.0,), -5.0)
