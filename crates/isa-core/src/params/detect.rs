@@ -310,7 +310,8 @@ pub struct DetectParams {
     pub quick_points: Option<usize>,
     /// Weight of log(forest score) added to a verified score. Default 0.05.
     pub forest_weight: f64,
-    /// Cross-category NMS: IoU above which a box goes. Default 0.25.
+    /// NMS (across categories, or within each with `nms_order` other than joint): IoU above
+    /// which a box goes. Default 0.25.
     pub nms_iou: f64,
     /// ... or the share of a smaller box inside a better one. Default 0.6.
     pub nms_overlap: f64,
@@ -320,7 +321,8 @@ pub struct DetectParams {
     /// that the probability decides overlaps; else only the detections NMS keeps. Default
     /// false.
     pub rank_before_nms: bool,
-    /// When NMS runs against ranking (without `rank_before_nms`). Default joint.
+    /// When NMS runs against ranking (without `rank_before_nms`; without verification there is
+    /// no ranking and the NMS is joint). Default joint.
     pub nms_order: NmsOrder,
     /// `ranked`'s NMS across categories: IoU above which a box goes (a chair tucked under a
     /// table overlaps it by about 0.25). Default 0.5.
