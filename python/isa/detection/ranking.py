@@ -253,6 +253,8 @@ def main(argv: list[str] | None = None) -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     for cat, (X, y) in data.items():
         on = f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}"
+        if a.set:  # the settings a ranker belongs to, for whoever reads the file
+            on += f"; settings {a.set}"
         if a.kind == "boosted":
             r = fit_boosted_ranker(cat, X, y, n_trees=a.trees, depth=a.depth, learning_rate=a.learning_rate,
                                    seed=a.seed, fitted_on=on)
