@@ -117,7 +117,8 @@ class DetectParams:
     the forest's score to a verified score; ``refine_top`` hypotheses per category are refined;
     ``turns`` > 1 also verifies each hypothesis turned by multiples of 360 / ``turns`` degrees
     about gravity (the forest's front and back are the easiest to confuse) and keeps the best;
-    ``nms_iou`` / ``nms_overlap`` the cross-category suppression; ``max_detections`` per frame;
+    ``nms_iou`` / ``nms_overlap`` the suppression (across categories; within each for the
+    ``nms_order`` values but ``"joint"``); ``max_detections`` per frame;
     ``min_score`` drops those with a weaker verified score, before ranking (None: none); ``rank_before_nms`` ranks every candidate
     before NMS (the rankers' probabilities decide overlaps) instead of the kept detections
     only; ``nms_order`` ``"joint"`` runs one NMS over every category on the verified scores and
