@@ -648,12 +648,13 @@ pub fn detect(
             owner.push((c.scale, mi));
         }
     }
-    let nms = |dets: &[Detection]| {
+    let nms_at = |dets: &[Detection], iou: f64, overlap: f64| {
         let boxes: Vec<UprightBox> = dets.iter().map(|d| upright_box(d, &rg)).collect();
-        let mut keep = nms_across(&boxes, p.nms_iou, p.nms_overlap);
+        let mut keep = nms_across(&boxes, iou, overlap);
         keep.truncate(p.max_detections);
         keep
     };
+    let nms = |dets: &[Detection]| nms_at(dets, p.nms_iou, p.nms_overlap);
     let detections = match &p.verify {
         Some(vp) if p.rank_before_nms => {
             let all: Vec<usize> = (0..dets.len()).collect();
@@ -679,9 +680,7 @@ pub fn detect(
             let ranked = rank(&dets, &owner, &keep, models, &sc, vp);
             lap("rank", &mut secs);
             if p.nms_order == NmsOrder::Ranked {
-                let boxes: Vec<UprightBox> = ranked.iter().map(|d| upright_box(d, &rg)).collect();
-                let mut keep = nms_across(&boxes, p.cross_iou, p.cross_overlap);
-                keep.truncate(p.max_detections);
+                let keep = nms_at(&ranked, p.cross_iou, p.cross_overlap);
                 lap("nms_across", &mut secs);
                 keep.into_iter().map(|i| ranked[i].clone()).collect()
             } else {

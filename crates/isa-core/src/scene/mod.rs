@@ -89,31 +89,20 @@ impl<'a> Frame<'a> {
     pub fn points(&self) -> (Vec<Vector3<f64>>, Vec<usize>) {
         let k = &self.camera.k;
         let w = self.camera.width;
-        // Rows in parallel (a whole frame's pixels), joined in order.
-        let rows: Vec<(Vec<Vector3<f64>>, Vec<usize>)> = self
-            .depth
+        // Rows in parallel (a whole frame's pixels), in order.
+        self.depth
             .par_chunks(w)
             .enumerate()
-            .map(|(v, row)| {
-                let mut pts = Vec::new();
-                let mut idx = Vec::new();
-                for (u, &d) in row.iter().enumerate() {
-                    if d > 0.0 {
+            .flat_map_iter(|(v, row)| {
+                row.iter()
+                    .enumerate()
+                    .filter(|(_, &d)| d > 0.0)
+                    .map(move |(u, &d)| {
                         let p = k.back_project(u as f64, v as f64, f64::from(d));
-                        pts.push(Vector3::new(p[0], p[1], p[2]));
-                        idx.push(v * w + u);
-                    }
-                }
-                (pts, idx)
+                        (Vector3::new(p[0], p[1], p[2]), v * w + u)
+                    })
             })
-            .collect();
-        let n = rows.iter().map(|r| r.0.len()).sum();
-        let (mut pts, mut idx) = (Vec::with_capacity(n), Vec::with_capacity(n));
-        for (p, i) in rows {
-            pts.extend(p);
-            idx.extend(i);
-        }
-        (pts, idx)
+            .unzip()
     }
 }
 
