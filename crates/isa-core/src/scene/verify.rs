@@ -81,24 +81,32 @@ pub fn visible_points(
     // covers few), ties to the earlier point. Cells count from `margin` outside the image, so
     // the shifted pixels are non-negative (and the cell of the least pixel is the least cell).
     let cell = cell_px as u32;
-    let cell_of = |u: i32, m: i64| (u as i64 + m) as u32 / cell;
-    let (c0, r0) = (cell_of(u0 as i32, mu), cell_of(v0 as i32, mv));
-    let cols = (cell_of(u1 as i32, mu) - c0 + 1) as usize;
-    let rows = (cell_of(v1 as i32, mv) - r0 + 1) as usize;
-    let mut best = vec![u32::MAX; cols * rows];
+    let cell_of = |u: i64, m: i64| (u + m) as u32 / cell;
+    let (c0, r0) = (cell_of(u0, mu), cell_of(v0, mv));
+    let cols = (cell_of(u1, mu) - c0 + 1) as usize;
+    let rows = (cell_of(v1, mv) - r0 + 1) as usize;
+    // Each reached pixel column's and row's cell, looked up: a division per point is what
+    // this loop would otherwise spend most of its time on.
+    let col_of: Vec<u32> = (u0..=u1).map(|u| cell_of(u, mu) - c0).collect();
+    let row_of: Vec<usize> = (v0..=v1)
+        .map(|v| (cell_of(v, mv) - r0) as usize * cols)
+        .collect();
+    // Per cell the front-most point and its depth, kept beside it (no lookup of the point).
+    let mut best = vec![(u32::MAX, f64::INFINITY); cols * rows];
     for (k, &(u, v)) in uv.iter().enumerate() {
         if u == DROPPED {
             continue;
         }
-        let slot =
-            &mut best[(cell_of(v, mv) - r0) as usize * cols + (cell_of(u, mu) - c0) as usize];
-        if *slot == u32::MAX || points[k].z < points[*slot as usize].z {
-            *slot = k as u32;
+        let slot = &mut best
+            [row_of[(i64::from(v) - v0) as usize] + col_of[(i64::from(u) - u0) as usize] as usize];
+        let z = points[k].z;
+        if slot.0 == u32::MAX || z < slot.1 {
+            *slot = (k as u32, z);
         }
     }
     best.iter()
-        .filter(|&&k| k != u32::MAX)
-        .map(|&k| {
+        .filter(|b| b.0 != u32::MAX)
+        .map(|&(k, _)| {
             let (u, v) = (i64::from(uv[k as usize].0), i64::from(uv[k as usize].1));
             (k as usize, u, v, u >= 0 && u < w && v >= 0 && v < h)
         })
