@@ -5,6 +5,8 @@ formula on a rendered room."""
 from __future__ import annotations
 
 import json
+import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,7 +14,7 @@ import pytest
 from isa import _core
 from isa.camera import KINECT_V1
 from isa.detection.ranking import FEATURES, Ranker, fit_boosted_ranker, fit_ranker
-from isa.exceptions import DataError, IsaError
+from isa.exceptions import DataError, InputWarning, IsaError
 from test_detection_scene import _room
 
 
@@ -95,6 +97,13 @@ def test_ranker_file_roundtrip_and_errors(tmp_path):
         with pytest.raises(ValueError, match=needle) as e:
             Ranker.load(tmp_path / "bad.json")
         assert "bad.json" in str(e.value) and isinstance(e.value, IsaError)
+    # The NMS order it was fitted under round-trips; an unknown one is refused, naming the file.
+    ordered = replace(r, nms_order="ranked")
+    ordered.save(tmp_path / "ordered.ranker.json")
+    assert Ranker.load(tmp_path / "ordered.ranker.json") == ordered and r.nms_order is None
+    (tmp_path / "bad.json").write_text(json.dumps(dict(doc, nms_order="sideways")))
+    with pytest.raises(ValueError, match="bad.json.*sideways"):
+        Ranker.load(tmp_path / "bad.json")
 
 
 @pytest.fixture(scope="module")
@@ -188,9 +197,8 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     exactly what that model alone gives (one category: NMS within it); ``joint`` leaves no two
     overlapping boxes, ``ranked`` none overlapping beyond ``cross_iou`` across categories; and
     ``ranked``, with a ranker sure of chairs and one doubting toilets, keeps the chairs of the
-    chair model alone, each with its probability, and no toilet on them."""
-    from dataclasses import replace
-
+    chair model alone, each with its probability, and no toilet on them; a ranker fitted
+    under another order than detection's warns."""
     from isa.detection import DetectParams
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel, detect
@@ -218,3 +226,11 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     for d in ranked:
         assert d.score == pytest.approx((sure if d.category == "chair" else doubt).probability(d.meta["features"]))
     assert [d.score for d in ranked] == sorted((d.score for d in ranked), reverse=True)
+    # A ranker fitted under "ranked" warns, naming its category, when detection runs "joint"
+    # (it would see other detections than it learnt from), and is silent under "ranked".
+    chair_r = replace(chair, ranker=replace(sure, nms_order="ranked"))
+    with pytest.warns(InputWarning, match="chair: its ranker was fitted under nms_order='ranked'"):
+        detect(depth, KINECT_V1, [chair_r, toilet], gravity=Rg, params=p)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        detect(depth, KINECT_V1, [chair_r, toilet], gravity=Rg, params=replace(p, nms_order="ranked"))

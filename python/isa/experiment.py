@@ -357,7 +357,7 @@ def _scenes(cfg: ExperimentConfig, out: Path, report: Report) -> None:
     true and false detections there: rankers for all categories or none)."""
     from dataclasses import replace
 
-    from isa.detection.multi import load_model
+    from isa.detection.multi import DetectParams, load_model
     from isa.detection.ranking import detection_outcomes, fit_ranker
     from isa.detection.shapes import bop_shape_library
     from isa.scenes import make_scenes, sources
@@ -375,8 +375,9 @@ def _scenes(cfg: ExperimentConfig, out: Path, report: Report) -> None:
     outcomes = detection_outcomes(scene_views(val, "val"), use)
     if all(y.any() and not y.all() for _, y in outcomes.values()):
         for c, (X, y) in outcomes.items():
-            fit_ranker(c, X, y, c=0.1, fitted_on=f"{val}/val: {int(y.sum())} true of {len(y)}").save(
-                models[c].with_suffix(".ranker.json"))
+            r = fit_ranker(c, X, y, c=0.1, fitted_on=f"{val}/val: {int(y.sum())} true of {len(y)}")
+            # detection_outcomes ran the default detector: its NMS order is the ranker's.
+            replace(r, nms_order=DetectParams().nms_order).save(models[c].with_suffix(".ranker.json"))
         ranked = "ranked by rankers fitted on validation rooms of other generated instances"
     else:
         ranked = "ranked by the verification score (the validation rooms gave too few detections to fit rankers)"

@@ -29,6 +29,7 @@ parts (:mod:`isa.detection.background`, kept in its model file) weights its vote
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -45,7 +46,7 @@ from isa.detection.shapes import ShapeLibrary
 from isa.detection.stage_params import core_params
 from isa.detection.verify import VerifyParams
 from isa.evaluation.boxes3d import Box3D, box_from_pose
-from isa.exceptions import DataError
+from isa.exceptions import DataError, InputWarning
 
 _D = _core.DETECT_DEFAULTS
 
@@ -231,6 +232,19 @@ def _size_range(m: CategoryModel):
     return None if r is None else (tuple(r.height), tuple(r.length))
 
 
+def _check_nms_order(models, params: DetectParams) -> None:
+    """Warn when a ranker was fitted under another NMS order than ``params``': it then sees
+    other detections than it learnt from (a ``"ranked"`` ranker under ``"joint"`` NMS, or the
+    reverse, ranks worse: docs/experiments.md, session 19)."""
+    for m in models:
+        fitted = None if m.ranker is None else m.ranker.nms_order
+        if fitted is not None and fitted != params.nms_order:
+            warnings.warn(f"{m.category}: its ranker was fitted under nms_order={fitted!r}, detection runs "
+                          f"nms_order={params.nms_order!r}; refit it (python -m isa.detection.ranking --set "
+                          f"'nms_order=\"{params.nms_order}\"') or detect with nms_order={fitted!r}",
+                          InputWarning, stacklevel=3)
+
+
 def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarray | None = None,
            params: DetectParams = DetectParams(), depth_scale: float | None = None) -> DetectResult:
     """Every category of ``models`` in one depth frame, one ranked list (module docstring).
@@ -245,6 +259,7 @@ def detect(depth: np.ndarray, intrinsics: Intrinsics, models, gravity: np.ndarra
     """
     depth = _core.depth_to_metres(depth, intrinsics, depth_scale)
     ms = _models(models)
+    _check_nms_order(ms, params)
     g = None if gravity is None else np.asarray(gravity, dtype=float).reshape(3, 3)
     specs = [{"category": m.category, "forest": m.forest, "size": m.box.size, "ssc_offset": m.box.ssc_offset,
               "shapes": None if m.shapes is None else m.shapes.core, "size_range": _size_range(m),

@@ -52,7 +52,9 @@ class Ranker:
     tree_t(f))))`` over the named ``features`` of a ``category``'s detections; ``trees`` (may be
     empty) are regression trees as flat node arrays (``isa_core::scene::ranking::RankTree``:
     dicts of ``feature``, ``threshold``, ``left``, ``right``, ``value``); ``fitted_on`` says on
-    what."""
+    what; ``nms_order`` the :class:`isa.detection.multi.DetectParams` ``nms_order`` of the
+    detections it was fitted on (None: not recorded, as in older files), so that detection can
+    warn when it runs under another."""
 
     category: str
     features: tuple[str, ...]
@@ -62,6 +64,7 @@ class Ranker:
     bias: float
     fitted_on: str = ""
     trees: tuple[dict, ...] = ()
+    nms_order: str | None = None
 
     def to_json(self) -> str:
         """The JSON the core reads (checked by it)."""
@@ -76,6 +79,8 @@ class Ranker:
                "bias": self.bias, "fitted_on": self.fitted_on}
         if self.trees:
             doc["trees"] = [{k: list(t[k]) for k in _TREE_KEYS} for t in self.trees]
+        if self.nms_order is not None:
+            doc["nms_order"] = self.nms_order
         return _core.check_ranker(json.dumps(doc), f"ranker of {self.category!r}")
 
     @classmethod
@@ -83,7 +88,7 @@ class Ranker:
         d = json.loads(_core.check_ranker(text, source))
         trees = tuple({k: tuple(t[k]) for k in _TREE_KEYS} for t in d.get("trees", ()))
         return cls(d["category"], tuple(d["features"]), tuple(d["mean"]), tuple(d["scale"]), tuple(d["weights"]),
-                   float(d["bias"]), d.get("fitted_on", ""), trees)
+                   float(d["bias"]), d.get("fitted_on", ""), trees, d.get("nms_order"))
 
     def save(self, path: str | Path) -> None:
         atomic.write_text(Path(path), self.to_json())
@@ -249,7 +254,8 @@ def main(argv: list[str] | None = None) -> None:
         models.append(replace(m, forest=m.forest.with_leaf_weights(None)))
     views = [v for root in a.scenes for v in scene_views(root, a.split)]
     where = " + ".join(f"{r}/{a.split}" for r in a.scenes)
-    data = detection_outcomes(views, models, params=with_settings(DetectParams(), a.set) if a.set else None)
+    params = with_settings(DetectParams(), a.set) if a.set else DetectParams()
+    data = detection_outcomes(views, models, params=params)
     a.out.mkdir(parents=True, exist_ok=True)
     for cat, (X, y) in data.items():
         on = f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}"
@@ -260,6 +266,7 @@ def main(argv: list[str] | None = None) -> None:
                                    seed=a.seed, fitted_on=on)
         else:
             r = fit_ranker(cat, X, y, c=a.C, fitted_on=on)
+        r = replace(r, nms_order=params.nms_order)
         r.save(a.out / f"{cat}.ranker.json")
         print(f"{cat}: {r.fitted_on} -> {a.out / f'{cat}.ranker.json'}")
 

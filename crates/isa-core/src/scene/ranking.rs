@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::verify::Verification;
 use super::Detection;
 use crate::error::{IsaError, Result};
+use crate::params::NmsOrder;
 
 /// The ranker file format this build writes. It reads format 1 too (linear only: no trees).
 pub const RANKER_FORMAT: u32 = 2;
@@ -140,7 +141,9 @@ impl RankTree {
 }
 
 /// A logistic model of one category: `P(true) = 1 / (1 + exp(-(bias + sum_i w_i (f_i - mean_i)
-/// / scale_i + sum_t tree_t(f))))` over the named features; `fitted_on` says on what (free text).
+/// / scale_i + sum_t tree_t(f))))` over the named features; `fitted_on` says on what (free text);
+/// `nms_order` the NMS order the detections it was fitted on came from (None: not recorded, as
+/// in files from before it was): under another order it sees other detections.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Ranker {
@@ -155,6 +158,8 @@ pub struct Ranker {
     pub trees: Vec<RankTree>,
     #[serde(default)]
     pub fitted_on: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nms_order: Option<NmsOrder>,
 }
 
 impl Ranker {
@@ -264,6 +269,7 @@ mod tests {
             bias,
             trees: Vec::new(),
             fitted_on: String::new(),
+            nms_order: None,
         }
     }
 
@@ -355,6 +361,28 @@ mod tests {
             ..ok
         };
         assert_eq!(Ranker::from_json(&linear.to_json(), "m").unwrap(), linear);
+    }
+
+    #[test]
+    fn the_nms_order_round_trips_and_an_unknown_one_names_the_file() {
+        let r = Ranker {
+            nms_order: Some(NmsOrder::Ranked),
+            ..ranker(&["agree"], &[1.0], 0.0)
+        };
+        let text = r.to_json();
+        assert!(text.contains("\"nms_order\": \"ranked\""), "{text}");
+        assert_eq!(Ranker::from_json(&text, "x").unwrap(), r);
+        let e = Ranker::from_json(&text.replace("\"ranked\"", "\"sideways\""), "m.ranker.json")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("m.ranker.json") && e.contains("sideways"), "{e}");
+        // Files from before the field: not recorded, and not written when not recorded.
+        let old = ranker(&["agree"], &[1.0], 0.0);
+        assert!(!old.to_json().contains("nms_order"));
+        assert_eq!(
+            Ranker::from_json(&old.to_json(), "x").unwrap().nms_order,
+            None
+        );
     }
 
     #[test]
