@@ -147,7 +147,7 @@ def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room(chair_room
         cells = f["agree"] + f["violate"] + f["occluded"] + f["outside"]
         assert cells == pytest.approx(1.0) and f["log_agree"] > 0
     ranker = Ranker("chair", ("agree", "violate", "log_support"), (0.5, 0.1, 3.0), (0.2, 0.1, 1.0), (2.0, -1.0, 0.5),
-                    0.1)
+                    0.1, nms_order=p.nms_order)
     ranked = detect(depth, KINECT_V1, [CategoryModel("chair", forest, model_box(forest), lib, ranker)], gravity=Rg,
                     params=p).detections
     assert len(ranked) == len(plain)
@@ -165,8 +165,9 @@ def test_core_scores_are_the_rankers_probabilities_on_a_rendered_room(chair_room
 
     from isa.evaluation.boxes3d import iou_3d
 
-    pre = detect(depth, KINECT_V1, [CategoryModel("chair", forest, model_box(forest), lib, ranker)], gravity=Rg,
-                 params=replace(p, rank_before_nms=True)).detections
+    joint_ranker = replace(ranker, nms_order="joint")
+    pre = detect(depth, KINECT_V1, [CategoryModel("chair", forest, model_box(forest), lib, joint_ranker)], gravity=Rg,
+                 params=replace(p, rank_before_nms=True, nms_order="joint")).detections
     assert pre and [d.score for d in pre] == sorted((d.score for d in pre), reverse=True)
     for d in pre:
         assert d.score == pytest.approx(ranker.probability(d.meta["features"]), rel=1e-12)
@@ -198,7 +199,8 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     overlapping boxes, ``ranked`` none overlapping beyond ``cross_iou`` across categories; and
     ``ranked``, with a ranker sure of chairs and one doubting toilets, keeps the chairs of the
     chair model alone, each with its probability, and no toilet on them; a ranker fitted
-    under another order than detection's warns."""
+    under another order than detection's warns, and so does one that does not record its order
+    under any but "joint"."""
     from isa.detection import DetectParams
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel, detect
@@ -209,15 +211,20 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     sure = Ranker("chair", ("agree",), (0.0,), (1.0,), (0.0,), 5.0)
     doubt = Ranker("toilet", ("agree",), (0.0,), (1.0,), (0.0,), -5.0)
     chair, toilet = CategoryModel("chair", forest, box, lib, sure), CategoryModel("toilet", forest, box, lib, doubt)
-    p = DetectParams()
+    p = DetectParams(nms_order="joint")
     pose = lambda d: tuple(np.round(np.r_[np.ravel(d.R), d.t], 9))  # noqa: E731
     alone = {m.category: detect(depth, KINECT_V1, [m], gravity=Rg, params=p).detections for m in (chair, toilet)}
     assert len(alone["chair"]) >= 2
-    per = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=replace(p, nms_order="per_category")).detections
+    # Rankers that do not record their order are taken for "joint" ones: the other orders warn.
+    unrecorded = "its ranker does not record the NMS order"
+    with pytest.warns(InputWarning, match=unrecorded) as caught:
+        per = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=replace(p, nms_order="per_category")).detections
+    assert sorted(str(w.message).split(":")[0] for w in caught) == ["chair", "toilet"]
     for c in ("chair", "toilet"):
         assert sorted(pose(d) for d in per if d.category == c) == sorted(map(pose, alone[c]))
     joint = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=p).detections
-    ranked = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=replace(p, nms_order="ranked")).detections
+    with pytest.warns(InputWarning, match=unrecorded):
+        ranked = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=replace(p, nms_order="ranked")).detections
     for dets, across in ((joint, p.nms_iou), (ranked, p.cross_iou)):
         boxes = [(d.category, d.box(Rg)) for d in dets]
         assert all(iou_3d(a, b) <= (p.nms_iou if ca == cb else across) + 1e-9
@@ -229,8 +236,43 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     # A ranker fitted under "ranked" warns, naming its category, when detection runs "joint"
     # (it would see other detections than it learnt from), and is silent under "ranked".
     chair_r = replace(chair, ranker=replace(sure, nms_order="ranked"))
+    toilet_r = replace(toilet, ranker=replace(doubt, nms_order="ranked"))
     with pytest.warns(InputWarning, match="chair: its ranker was fitted under nms_order='ranked'"):
         detect(depth, KINECT_V1, [chair_r, toilet], gravity=Rg, params=p)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        detect(depth, KINECT_V1, [chair_r, toilet], gravity=Rg, params=replace(p, nms_order="ranked"))
+        detect(depth, KINECT_V1, [chair_r, toilet_r], gravity=Rg, params=replace(p, nms_order="ranked"))
+
+
+def test_rival_margin_is_the_score_gap_to_the_best_overlapping_box_of_another_category(chair_room):
+    """A chair model and a "toilet" model with the same forest and two of the chair shapes, in a
+    rendered room with two chairs; NMS off (nothing exceeds IoU or overlap 1) and no rankers, so
+    every candidate is a detection with its score before ranking. Each one's ``rival_margin`` is
+    its score minus the best score of the other category's detections whose box overlaps it at
+    IoU >= 0.25 (computed here from the boxes), and 1 where none does; a model alone has no
+    rivals."""
+    from isa.detection import DetectParams
+    from isa.detection.category_boxes import model_box
+    from isa.detection.multi import CategoryModel, detect
+    from isa.detection.shapes import ShapeLibrary
+    from isa.evaluation.boxes3d import iou_3d
+
+    forest, lib, depth, Rg = chair_room
+    box = model_box(forest)
+    two = ShapeLibrary("toilet", lib.points[:2], lib.normals[:2], lib.spacing[:2], lib.bounds[:2],
+                       lib.names[:2], lib.size_range)
+    chair, toilet = CategoryModel("chair", forest, box, lib), CategoryModel("toilet", forest, box, two)
+    p = replace(DetectParams(), nms_order="per_category", nms_iou=1.0, nms_overlap=1.0, max_detections=100_000)
+    dets = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=p).detections
+    assert {d.category for d in dets} == {"chair", "toilet"}
+    boxes = [d.box(Rg) for d in dets]
+    gaps = []
+    for i, d in enumerate(dets):
+        rivals = [e.score for j, e in enumerate(dets)
+                  if e.category != d.category and iou_3d(boxes[i], boxes[j]) >= 0.25]
+        want = d.score - max(rivals) if rivals else 1.0
+        assert d.meta["features"]["rival_margin"] == pytest.approx(want, abs=1e-9)
+        gaps += [want] if rivals else []
+    assert gaps and min(gaps) < 0 < max(gaps), gaps  # both sides of the margin are exercised
+    alone = detect(depth, KINECT_V1, [chair], gravity=Rg, params=p).detections
+    assert alone and all(d.meta["features"]["rival_margin"] == 1.0 for d in alone)

@@ -235,10 +235,19 @@ def _size_range(m: CategoryModel):
 def _check_nms_order(models, params: DetectParams) -> None:
     """Warn when a ranker was fitted under another NMS order than ``params``': it then sees
     other detections than it learnt from (a ``"ranked"`` ranker under ``"joint"`` NMS, or the
-    reverse, ranks worse: docs/experiments.md, session 19)."""
+    reverse, ranks worse: docs/experiments.md, session 19), or when it does not record its order
+    and detection runs another than ``"joint"`` (files from before the record were fitted under
+    it, the default then)."""
     for m in models:
-        fitted = None if m.ranker is None else m.ranker.nms_order
-        if fitted is not None and fitted != params.nms_order:
+        if m.ranker is None:
+            continue
+        fitted = m.ranker.nms_order
+        if fitted is None and params.nms_order != "joint":
+            warnings.warn(f"{m.category}: its ranker does not record the NMS order it was fitted under (files "
+                          f"written before the record were fitted under 'joint', the default then); detection "
+                          f"runs nms_order={params.nms_order!r}: refit it (python -m isa.detection.ranking) or "
+                          f"detect with nms_order='joint'", InputWarning, stacklevel=3)
+        elif fitted is not None and fitted != params.nms_order:
             warnings.warn(f"{m.category}: its ranker was fitted under nms_order={fitted!r}, detection runs "
                           f"nms_order={params.nms_order!r}; refit it (python -m isa.detection.ranking --set "
                           f"'nms_order=\"{params.nms_order}\"') or detect with nms_order={fitted!r}",

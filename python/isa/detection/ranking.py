@@ -242,10 +242,18 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=0, help="boosted: random seed (default 0)")
     p.add_argument("--set", metavar="KEY=JSON,...", help="detection parameters to fit under, as evaluate's "
                    "set: variant (e.g. proposals.cell=0.04)")
+    p.add_argument("--features", metavar="NAME,...", help="the features to fit on, comma-separated "
+                   f"(default: all, {', '.join(FEATURES)})")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for <category>.ranker.json")
     a = p.parse_args(argv)
     if a.split == "test":
         p.error("--split test: rankers are fitted on validation rooms, never on test rooms")
+    names = tuple(a.features.split(",")) if a.features else FEATURES
+    unknown = [n for n in names if n not in FEATURES]
+    if unknown or len(set(names)) < len(names):
+        p.error(f"--features {a.features}: unknown or repeated {', '.join(unknown) or 'names'}; "
+                f"known: {', '.join(FEATURES)}")
+    columns = [FEATURES.index(n) for n in names]
     models = []
     for item, m in zip(a.model, models_from_args(a.model, a.shapes)):
         if m.shapes is None:
@@ -258,14 +266,15 @@ def main(argv: list[str] | None = None) -> None:
     data = detection_outcomes(views, models, params=params)
     a.out.mkdir(parents=True, exist_ok=True)
     for cat, (X, y) in data.items():
+        X = X[:, columns]
         on = f"{len(views)} views of {where}: {int(y.sum())} true of {len(y)}"
         if a.set:  # the settings a ranker belongs to, for whoever reads the file
             on += f"; settings {a.set}"
         if a.kind == "boosted":
-            r = fit_boosted_ranker(cat, X, y, n_trees=a.trees, depth=a.depth, learning_rate=a.learning_rate,
+            r = fit_boosted_ranker(cat, X, y, names, n_trees=a.trees, depth=a.depth, learning_rate=a.learning_rate,
                                    seed=a.seed, fitted_on=on)
         else:
-            r = fit_ranker(cat, X, y, c=a.C, fitted_on=on)
+            r = fit_ranker(cat, X, y, names, c=a.C, fitted_on=on)
         r = replace(r, nms_order=params.nms_order)
         r.save(a.out / f"{cat}.ranker.json")
         print(f"{cat}: {r.fitted_on} -> {a.out / f'{cat}.ranker.json'}")

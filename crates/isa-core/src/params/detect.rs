@@ -321,8 +321,10 @@ pub struct DetectParams {
     /// that the probability decides overlaps; else only the detections NMS keeps. Default
     /// false.
     pub rank_before_nms: bool,
-    /// When NMS runs against ranking (without `rank_before_nms`; without verification there is
-    /// no ranking and the NMS is joint). Default joint.
+    /// When NMS runs against ranking (without `rank_before_nms`, which needs joint; without
+    /// verification there is no ranking and the NMS is joint). Default ranked: with rankers it
+    /// wins on validation rooms (`docs/experiments.md`, "Rivals"); without, joint is a little
+    /// better.
     pub nms_order: NmsOrder,
     /// `ranked`'s NMS across categories: IoU above which a box goes (a chair tucked under a
     /// table overlaps it by about 0.25). Default 0.5.
@@ -359,7 +361,7 @@ impl Default for DetectParams {
             nms_overlap: 0.6,
             max_detections: 20,
             rank_before_nms: false,
-            nms_order: NmsOrder::Joint,
+            nms_order: NmsOrder::Ranked,
             cross_iou: 0.5,
             cross_overlap: 1.0,
             min_score: None,

@@ -15,10 +15,10 @@ use rayon::prelude::*;
 use serde_json::Value;
 
 use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource};
-use super::nms::{nms_across, nms_within, UprightBox};
+use super::nms::{iou, nms_across, nms_within, UprightBox};
 use super::planes::{find_planes, Planes};
 use super::proposals::{footprints, Footprint};
-use super::ranking::{features, Ranker, FEATURES};
+use super::ranking::{features, Ranker, FEATURES, RIVAL_IOU};
 use super::refine::{refine_pose, upright_points};
 use super::shapes::{ShapeLibrary, SizeRange};
 use super::verify::{verify_pose, Evidence, Verification};
@@ -720,6 +720,7 @@ fn rank(
         unexplained_weight: vp.unexplained_weight.max(f64::MIN_POSITIVE),
         ..vp.clone()
     };
+    let boxes: Vec<UprightBox> = dets.iter().map(|d| upright_box(d, &sc.rg)).collect();
     let mut out: Vec<Detection> = keep
         .par_iter()
         .map(|&i| {
@@ -730,7 +731,12 @@ fn rank(
                 let r = super::mat(&d.r);
                 let t = Vector3::from(d.t);
                 let (v, _) = sc.verify_scaled(&r, &t, lib, s, scale, &counting, None);
-                let f = features(&d, &v, scale);
+                // Every candidate of the other categories counts, suppressed or not.
+                let rival = (0..dets.len())
+                    .filter(|&j| owner[j].1 != mi && iou(&boxes[i], &boxes[j]) >= RIVAL_IOU)
+                    .map(|j| dets[j].score)
+                    .reduce(f64::max);
+                let f = features(&d, &v, scale, rival);
                 if let Some(rk) = m.ranker {
                     d.score = rk.probability(&f);
                 }

@@ -21,7 +21,7 @@ use crate::params::NmsOrder;
 pub const RANKER_FORMAT: u32 = 2;
 
 /// The features a ranker may use, in the order [`features`] returns them.
-pub const FEATURES: [&str; 17] = [
+pub const FEATURES: [&str; 18] = [
     "verify_score",
     "agree",
     "violate",
@@ -39,14 +39,30 @@ pub const FEATURES: [&str; 17] = [
     "scale_change",
     "height",
     "length",
+    "rival_margin",
 ];
+
+/// [`features`]' `rival_margin` of a detection that no other category's box overlaps.
+pub const NO_RIVAL: f64 = 1.0;
+/// Box IoU (upright boxes) at which another category's detection is a rival: the evaluation's
+/// match threshold, so a rival is a box that would take the same object.
+pub const RIVAL_IOU: f64 = 0.25;
 
 /// A detection's features (named by [`FEATURES`]): the verification's score and its counts as
 /// fractions of the visible shape cells, `ln(1 + agree)`, the forest's log score and support,
 /// the hypothesis' rank and tilt, whether refinement moved it, its depth (camera z, metres),
 /// the size fit's largest `|ln scale|` (`scale`: the fitted size over the shape's own), and its
-/// height and horizontal length (metres).
-pub fn features(d: &Detection, v: &Verification, scale: [f64; 3]) -> [f64; FEATURES.len()] {
+/// height and horizontal length (metres), and `rival_margin`: how far its score (before ranking)
+/// is above the best of another category's detections whose box overlaps it (`rival`, None:
+/// none overlaps, the margin is [`NO_RIVAL`]). The other features see one category's shapes
+/// alone; the margin says whether another category explains the same surface better (a chair
+/// and a toilet box on one object).
+pub fn features(
+    d: &Detection,
+    v: &Verification,
+    scale: [f64; 3],
+    rival: Option<f64>,
+) -> [f64; FEATURES.len()] {
     let n = (v.agree + v.violate + v.occluded + v.outside).max(1) as f64;
     let frac = |k: usize| k as f64 / n;
     [
@@ -67,6 +83,7 @@ pub fn features(d: &Detection, v: &Verification, scale: [f64; 3]) -> [f64; FEATU
         scale.iter().map(|s| s.ln().abs()).fold(0.0, f64::max),
         d.size[2],
         d.size[0].max(d.size[1]),
+        rival.map_or(NO_RIVAL, |r| d.score - r),
     ]
 }
 
@@ -412,7 +429,7 @@ mod tests {
             outside: 10,
             unexplained: 5,
         };
-        let f = features(&d, &v, [1.0, 0.5, 2.0]);
+        let f = features(&d, &v, [1.0, 0.5, 2.0], Some(0.5));
         let expect = [
             0.4,
             0.6,
@@ -431,6 +448,7 @@ mod tests {
             2f64.ln(),
             0.9,
             0.6,
+            -0.5,
         ];
         for (k, (a, b)) in f.iter().zip(expect).enumerate() {
             assert!((a - b).abs() < 1e-12, "{}: {a} vs {b}", FEATURES[k]);
