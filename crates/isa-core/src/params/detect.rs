@@ -137,7 +137,7 @@ impl VerifyParams {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RefineParams {
-    /// ICP iterations. Default 8.
+    /// ICP iterations. Default 5.
     pub iterations: usize,
     /// The trimming distance falls from this (metres)... Default 0.15.
     pub max_distance: f64,
@@ -162,7 +162,7 @@ pub struct RefineParams {
 impl Default for RefineParams {
     fn default() -> Self {
         Self {
-            iterations: 8,
+            iterations: 5,
             max_distance: 0.15,
             min_distance: 0.03,
             margin: 0.15,
