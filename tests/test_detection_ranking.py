@@ -276,3 +276,18 @@ def test_rival_margin_is_the_score_gap_to_the_best_overlapping_box_of_another_ca
     assert gaps and min(gaps) < 0 < max(gaps), gaps  # both sides of the margin are exercised
     alone = detect(depth, KINECT_V1, [chair], gravity=Rg, params=p).detections
     assert alone and all(d.meta["features"]["rival_margin"] == 1.0 for d in alone)
+
+
+@pytest.mark.parametrize("features, needle", [("agree,agreement", "unknown or repeated agreement"),
+                                              ("agree,depth,agree", "unknown or repeated names")])
+def test_ranking_cli_refuses_unknown_or_repeated_features_before_any_work(tmp_path, capsys, features, needle):
+    from isa.detection.ranking import main
+
+    # No scene root or model exists: the refusal must come before anything is read.
+    with pytest.raises(SystemExit) as e:
+        main(["--scenes", str(tmp_path / "none"), "--model", f"chair={tmp_path / 'none.isa'}",
+              "--features", features, "-o", str(tmp_path / "out")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert needle in err and "known: " + ", ".join(FEATURES) in err
+    assert not (tmp_path / "out").exists()
