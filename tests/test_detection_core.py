@@ -88,6 +88,11 @@ def test_settings_overlay_top_level_and_nested_keys_and_the_core_checks_them():
     want["proposals"]["cell"] = 0.04
     want["refine"]["fix_height"] = True
     assert p.to_dict() == want
+    # A list value keeps its commas; a value that is not JSON is refused naming its setting.
+    p = with_settings(DetectParams(), "size_steps=[0.7,0.85,1.15,1.4],max_hypotheses=12")
+    assert (p.size_steps, p.max_hypotheses) == ([0.7, 0.85, 1.15, 1.4], 12)
+    with pytest.raises(ValueError, match="'turns=two'"):
+        with_settings(DetectParams(), "max_hypotheses=10,turns=two")
     # The core validates the overlay when it is used (a negative cell is refused by name).
     depth = np.full((48, 64), 2.0, np.float32)
     with pytest.raises(ValueError, match="proposals.cell"):

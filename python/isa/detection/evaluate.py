@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -46,7 +47,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from isa import atomic
-from isa.exceptions import DataError
+from isa.exceptions import DataError, InvalidValueError
 
 if TYPE_CHECKING:
     from isa.detection.multi import DetectParams
@@ -87,11 +88,15 @@ def variant_params(name: str):
 
 def with_settings(params: DetectParams, spec: str) -> DetectParams:
     """``params`` with ``spec``'s settings, ``KEY=JSON,section.key=JSON,...`` (e.g.
-    ``max_hypotheses=10,proposals.cell=0.04``)."""
-    for item in spec.split(","):
+    ``max_hypotheses=10,proposals.cell=0.04,size_steps=[0.7,1.4]``: a comma starts the next
+    setting only where a ``KEY=`` follows it, so lists keep theirs)."""
+    for item in re.split(r",(?=[A-Za-z_][\w.]*=)", spec):
         key, _, value = item.partition("=")
         section, _, sub = key.rpartition(".")
-        v = json.loads(value)
+        try:
+            v = json.loads(value)
+        except json.JSONDecodeError as e:
+            raise InvalidValueError(f"setting {item!r}: the value after '=' is not JSON ({e})") from None
         params = (replace(params, **{sub: v}) if not section
                   else replace(params, **{section: replace(getattr(params, section), **{sub: v})}))
     return params
