@@ -52,6 +52,18 @@ def test_validation_is_the_last_train_instances_and_never_overlaps(tmp_path):
         validation_instances(root, "chair", 0)
 
 
+def test_validation_skip_takes_the_instances_just_before_the_last_ones(tmp_path):
+    root = _fake_root(tmp_path)
+    names = [i.name for i in list_instances(root, "chair", "train")]
+    skipped = [i.name for i in validation_instances(root, "chair", 2, skip=1)]
+    assert skipped == names[-3:-1]  # the two before the last, disjoint from validation_instances(.., 1)
+    assert not set(skipped) & {i.name for i in validation_instances(root, "chair", 1)}
+    with pytest.raises(DataError, match="2 training \\+ 2 validation instances \\+ 1 skipped"):
+        validation_instances(root, "chair", 2, n_train=2, skip=1)  # 4 train chairs cannot hold 2 + 2 + 1
+    with pytest.raises(DataError, match="validation"):
+        validation_instances(root, "chair", 2, skip=-1)
+
+
 def test_real_validation_instances_are_disjoint_from_the_protocol(shared_data):
     for cat, n_paper in PAPER.items():
         val = {i.name for i in validation_instances(shared_data / "modelnet10", cat, n_train=n_paper)}

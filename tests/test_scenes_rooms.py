@@ -232,6 +232,9 @@ def test_modelnet_sources_test_and_validation_split(shared_data, tmp_path):
     protocol = {f"modelnet:train/{i.path.name}" for i in paper_instances(mn, "chair")}
     srcs = set(val.sources("chair"))
     assert srcs == names and not srcs & protocol
+    held_out = set(modelnet_validation(mn, ["chair"], n=3, skip=3).sources("chair"))  # rooms to fit rankers on
+    everything = [f"modelnet:train/{i.path.name}" for i in validation_instances(mn, "chair", 6)]
+    assert held_out == set(everything[:3]) and not held_out & srcs
     s = make_scenes(tmp_path, "test", test, 1, 1, seed=0, noise=False, n_instances=(2, 2), rig=RIG, progress=False)
     assert s.rendered == 1
     f = read_scene_dataset(tmp_path, "test")[0]

@@ -70,13 +70,17 @@ def paper_instances(root: str | Path, category: str, n: int | None = None) -> li
 VALIDATION_INSTANCES = 12
 
 
-def validation_instances(root: str | Path, category: str, n: int | None = None, n_train: int = 0) -> list[Instance]:
+def validation_instances(root: str | Path, category: str, n: int | None = None, n_train: int = 0,
+                         skip: int = 0) -> list[Instance]:
     """The last ``n`` (default :data:`VALIDATION_INSTANCES`) train-split instances: what
-    hyper-parameters are tuned on, so test instances stay unseen. ``DataError`` if they would
+    hyper-parameters are tuned on, so test instances stay unseen. ``skip`` > 0 takes the ``n``
+    before the last ``skip`` instead (held out from validation rooms made with ``n <= skip``:
+    rankers fitted on them are scored on shapes they never saw). ``DataError`` if they would
     overlap the first ``n_train`` (the training instances)."""
     n = VALIDATION_INSTANCES if n is None else int(n)
+    skip = int(skip)
     inst = list_instances(root, category, "train")
-    if n <= 0 or n_train + n > len(inst):
+    if n <= 0 or skip < 0 or n_train + n + skip > len(inst):
         raise DataError(f"ModelNet10 {category}/train under {root}: {len(inst)} instances cannot hold "
-                        f"{n_train} training + {n} validation instances")
-    return inst[len(inst) - n:]
+                        f"{n_train} training + {n} validation instances" + (f" + {skip} skipped" if skip else ""))
+    return inst[len(inst) - skip - n:len(inst) - skip]

@@ -68,16 +68,17 @@ class RenderSummary:
 
 def modelnet_objects(
     root: str | Path, category: str, n: int | None = None, split: str = "train", seed: int = 0, first_obj_id: int = 1,
-    progress: bool = True,
+    progress: bool = True, skip: int = 0,
 ) -> list[ObjectSpec]:
     """ModelNet10 instances as :class:`ObjectSpec`, rescaled to real size (seeded per instance).
 
     For ``split="train"`` the first ``n`` instances in name order (``n=None``: the paper's count);
     for ``"test"`` the first ``n`` (``None``: all); for ``"validation"`` the last ``n`` of the train
-    split (``None``: :data:`isa.data.modelnet.VALIDATION_INSTANCES`), held out for tuning.
+    split (``None``: :data:`isa.data.modelnet.VALIDATION_INSTANCES`), held out for tuning; ``skip``
+    (validation only) leaves the last ``skip`` out first.
     """
     if split == "validation":
-        insts = validation_instances(root, category, n)
+        insts = validation_instances(root, category, n, skip=skip)
     elif split == "train":
         insts = paper_instances(root, category, n)
     else:

@@ -65,6 +65,9 @@ def add_make_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scan", metavar="DIR", help="the Scan2CAD scan folder (scan2cad source)")
     p.add_argument("--categories", nargs="+", default=list(CATEGORIES), choices=CATEGORIES)
     p.add_argument("--validation-instances", type=int, default=12, help="modelnet-validation: last N per category")
+    p.add_argument("--validation-skip", type=int, default=0, metavar="K",
+                   help="modelnet-validation: the N before the last K instead (shapes other validation rooms, "
+                        "made with N <= K, do not hold: rooms to fit rankers on)")
     p.add_argument("--scenes", type=int, default=10, help="rooms (scan2cad: ignored)")
     p.add_argument("--views", type=int, default=3, help="camera views per room (scan2cad: views of the scan)")
     p.add_argument("--seed", type=int, default=0)
@@ -88,7 +91,8 @@ def cmd_make(a) -> None:
         elif a.source == "modelnet-test":
             src = sources.modelnet_test(a.modelnet, a.categories)
         else:
-            src = sources.modelnet_validation(a.modelnet, a.categories, a.validation_instances)
+            src = sources.modelnet_validation(a.modelnet, a.categories, a.validation_instances,
+                                              skip=a.validation_skip)
         summary = make_scenes(a.out, a.split, src, a.scenes, a.views, a.seed, noise=not a.no_noise)
     print(f"scenes: {a.out}/{a.split}: {summary}")
 

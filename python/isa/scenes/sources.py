@@ -135,11 +135,11 @@ def _modelnet_ssc(root, ssc: Mapping[str, CategorySSC] | None):
     return ssc_for
 
 
-def _modelnet_load(root, split: str, n: int | None, seed: int):
+def _modelnet_load(root, split: str, n: int | None, seed: int, skip: int = 0):
     """ModelNet instances of a category with a machine-independent ``source``:
     ``modelnet:<split folder>/<file>`` (the contract's ``isa_source``)."""
     def load(category: str) -> list[ObjectSpec]:
-        objs = modelnet_objects(root, category, n, split=split, seed=seed, progress=False)
+        objs = modelnet_objects(root, category, n, split=split, seed=seed, progress=False, skip=skip)
         for o in objs:
             p = Path(o.source)
             o.source = f"modelnet:{p.parent.name}/{p.name}"
@@ -158,17 +158,19 @@ def modelnet_test(root, categories: Sequence[str], n: int | None = None, seed: i
 
 
 def modelnet_validation(root, categories: Sequence[str], n: int | None = None, seed: int = 0,
-                        ssc: Mapping[str, CategorySSC] | None = None) -> MeshSource:
+                        ssc: Mapping[str, CategorySSC] | None = None, skip: int = 0) -> MeshSource:
     """The LAST ``n`` train-split meshes per category (:func:`isa.data.modelnet.validation_instances`,
-    default :data:`isa.data.modelnet.VALIDATION_INSTANCES`): for validation scenes, never the paper
-    protocol's first instances (``DataError`` if they would overlap)."""
+    default :data:`isa.data.modelnet.VALIDATION_INSTANCES`), or with ``skip`` the ``n`` before the
+    last ``skip``: for validation scenes, never the paper protocol's first instances
+    (``DataError`` if they would overlap)."""
     from isa.categories import PAPER_INSTANCES
     from isa.data.modelnet import validation_instances
 
     cats = _check(categories)
     for c in cats:  # raises when the protocol's training instances and these would overlap
-        validation_instances(root, c, n, n_train=PAPER_INSTANCES[c])
-    return MeshSource(f"modelnet-validation:{n}:{seed}", cats, _modelnet_load(root, "validation", n, seed),
+        validation_instances(root, c, n, n_train=PAPER_INSTANCES[c], skip=skip)
+    name = f"modelnet-validation:{n}:{seed}" + (f":skip{skip}" if skip else "")
+    return MeshSource(name, cats, _modelnet_load(root, "validation", n, seed, skip),
                       _preparer(_modelnet_ssc(root, ssc), False))
 
 
