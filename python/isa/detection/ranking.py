@@ -22,6 +22,7 @@ a probability and a verification score do not rank together.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -144,11 +145,13 @@ def fit_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: S
 
 
 def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: Sequence[str] = FEATURES,
-                       n_trees: int = 100, depth: int = 2, learning_rate: float = 0.05, min_leaf: int = 20,
+                       n_trees: int = 200, depth: int = 3, learning_rate: float = 0.05, min_leaf: int = 20,
                        seed: int = 0, fitted_on: str = "") -> Ranker:
     """A ranker whose log-odds are a sum of ``n_trees`` regression trees of ``depth`` levels
     (scikit-learn's ``GradientBoostingClassifier``, log-loss; at least ``min_leaf`` detections
-    a leaf), exported as flat node arrays with the learning rate folded into the leaves."""
+    a leaf), exported as flat node arrays with the learning rate folded into the leaves. The
+    defaults won on rooms of other shapes with 1,000-4,000 detections a category
+    (docs/experiments.md, "Rankers fitted on shapes the scored rooms do not hold")."""
     try:
         from sklearn.ensemble import GradientBoostingClassifier
     except ImportError as e:
@@ -235,11 +238,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--kind", choices=("logistic", "boosted"), default="boosted",
                    help="boosted regression trees (the default; they need a few hundred detections per "
                         "category), or linear log-odds")
+    boost = {k: v.default for k, v in inspect.signature(fit_boosted_ranker).parameters.items()}
     p.add_argument("-C", type=float, default=0.1, help="logistic: inverse L2 strength (default 0.1)")
-    p.add_argument("--trees", type=int, default=100, help="boosted: number of trees (default 100)")
-    p.add_argument("--depth", type=int, default=2, help="boosted: levels per tree (default 2)")
-    p.add_argument("--learning-rate", type=float, default=0.05, help="boosted: shrinkage (default 0.05)")
-    p.add_argument("--seed", type=int, default=0, help="boosted: random seed (default 0)")
+    p.add_argument("--trees", type=int, default=boost["n_trees"],
+                   help=f"boosted: number of trees (default {boost['n_trees']})")
+    p.add_argument("--depth", type=int, default=boost["depth"], help=f"boosted: levels per tree (default {boost['depth']})")
+    p.add_argument("--learning-rate", type=float, default=boost["learning_rate"],
+                   help=f"boosted: shrinkage (default {boost['learning_rate']})")
+    p.add_argument("--seed", type=int, default=boost["seed"], help=f"boosted: random seed (default {boost['seed']})")
     p.add_argument("--set", metavar="KEY=JSON,...", help="detection parameters to fit under, as evaluate's "
                    "set: variant (e.g. proposals.cell=0.04)")
     p.add_argument("--features", metavar="NAME,...", help="the features to fit on, comma-separated "
