@@ -150,7 +150,7 @@ def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, 
     """A ranker whose log-odds are a sum of ``n_trees`` regression trees of ``depth`` levels
     (scikit-learn's ``GradientBoostingClassifier``, log-loss; at least ``min_leaf`` detections
     a leaf), exported as flat node arrays with the learning rate folded into the leaves. The
-    defaults won on rooms of other shapes with 1,000-4,000 detections a category
+    defaults won on rooms of other shapes with 1,000-3,500 detections a category
     (docs/experiments.md, "Rankers fitted on shapes the scored rooms do not hold")."""
     try:
         from sklearn.ensemble import GradientBoostingClassifier
