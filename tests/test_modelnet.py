@@ -62,6 +62,10 @@ def test_validation_skip_takes_the_instances_just_before_the_last_ones(tmp_path)
         validation_instances(root, "chair", 2, n_train=2, skip=1)  # 4 train chairs cannot hold 2 + 2 + 1
     with pytest.raises(DataError, match="validation"):
         validation_instances(root, "chair", 2, skip=-1)
+    from isa.render.dataset import modelnet_objects
+
+    with pytest.raises(DataError, match="skip=1 applies to split='validation' only"):
+        modelnet_objects(root, "chair", 2, split="test", skip=1)  # refused before any mesh is read
 
 
 def test_real_validation_instances_are_disjoint_from_the_protocol(shared_data):

@@ -350,3 +350,12 @@ def test_things_on_a_table_rest_on_its_top():
         fps = room.footprints
         assert all(not a.intersects(b) for i, a in enumerate(fps) for b in fps[i + 1:])
     assert placed >= 3
+
+
+def test_make_refuses_validation_skip_for_another_source(tmp_path):
+    from isa.scenes.__main__ import main
+
+    out = tmp_path / "rooms"
+    with pytest.raises(SystemExit, match="--validation-skip applies to --source modelnet-validation, not procedural"):
+        main(["make", "--out", str(out), "--source", "procedural", "--validation-skip", "3"])
+    assert not out.exists()  # refused before anything is written

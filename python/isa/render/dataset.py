@@ -77,6 +77,8 @@ def modelnet_objects(
     split (``None``: :data:`isa.data.modelnet.VALIDATION_INSTANCES`), held out for tuning; ``skip``
     (validation only) leaves the last ``skip`` out first.
     """
+    if skip and split != "validation":
+        raise DataError(f"modelnet_objects: skip={skip} applies to split='validation' only, not {split!r}")
     if split == "validation":
         insts = validation_instances(root, category, n, skip=skip)
     elif split == "train":

@@ -84,6 +84,8 @@ def cmd_make(a) -> None:
             raise SystemExit("make --source scan2cad needs --scan DIR")
         summary = make_scan2cad_scenes(a.out, a.scan, a.views, seed=a.seed, noise=not a.no_noise, split=a.split)
     else:
+        if a.validation_skip and a.source != "modelnet-validation":
+            raise SystemExit(f"make --validation-skip applies to --source modelnet-validation, not {a.source}")
         if a.source == "procedural":
             src = sources.procedural(a.categories, a.seed)
         elif not a.modelnet:
