@@ -17,6 +17,7 @@ use serde_json::Value;
 use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource};
 use super::nms::{iou, nms_across, nms_within, UprightBox};
 use super::planes::{find_planes, Planes};
+use super::profile::{profile, seen_points, STRIDE as PROFILE_STRIDE};
 use super::proposals::{footprints, Footprint};
 use super::ranking::{features, Ranker, FEATURES, RIVAL_IOU};
 use super::refine::{refine_pose, upright_points};
@@ -721,6 +722,7 @@ fn rank(
         ..vp.clone()
     };
     let boxes: Vec<UprightBox> = dets.iter().map(|d| upright_box(d, &sc.rg)).collect();
+    let seen = seen_points(&sc.ev.frame, &sc.rg, sc.ev.planes, sc.floor, PROFILE_STRIDE);
     let mut out: Vec<Detection> = keep
         .par_iter()
         .map(|&i| {
@@ -736,7 +738,7 @@ fn rank(
                     .filter(|&j| owner[j].1 != mi && iou(&boxes[i], &boxes[j]) >= RIVAL_IOU)
                     .map(|j| dets[j].score)
                     .reduce(f64::max);
-                let f = features(&d, &v, scale, rival);
+                let f = features(&d, &v, scale, rival, &profile(&seen, &boxes[i]));
                 if let Some(rk) = m.ranker {
                     d.score = rk.probability(&f);
                 }

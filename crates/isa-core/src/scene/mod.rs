@@ -12,7 +12,8 @@
 //!   the best shape and a per-axis scale give the score and the size;
 //! * [`refine`]: upright ICP (yaw and translation) of the best hypotheses;
 //! * [`nms`]: one ranked list, boxes suppressed across categories;
-//! * [`ranking`]: the kept detections scored by each category's ranker (optional).
+//! * [`ranking`]: the kept detections scored by each category's ranker (optional), from the
+//!   earlier stages' measures and the seen surface's [`profile`] in each box.
 //!
 //! Frames: `R_gravity` maps camera to upright coordinates (`X_up = R_gravity X_cam`, z up); a
 //! pose `(R, t)` maps object to camera (`X_cam = R X_obj + t`). All geometry is `f64`.
@@ -21,6 +22,7 @@ pub mod detect;
 pub mod gravity;
 pub mod nms;
 pub mod planes;
+pub mod profile;
 pub mod proposals;
 pub mod ranking;
 pub mod refine;

@@ -12,6 +12,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::profile::{Profile, LEVELS};
 use super::verify::Verification;
 use super::Detection;
 use crate::error::{IsaError, Result};
@@ -21,7 +22,7 @@ use crate::params::NmsOrder;
 pub const RANKER_FORMAT: u32 = 2;
 
 /// The features a ranker may use, in the order [`features`] returns them.
-pub const FEATURES: [&str; 18] = [
+pub const FEATURES: [&str; 26] = [
     "verify_score",
     "agree",
     "violate",
@@ -40,7 +41,17 @@ pub const FEATURES: [&str; 18] = [
     "height",
     "length",
     "rival_margin",
+    "fill",
+    "level_1",
+    "level_2",
+    "level_3",
+    "level_4",
+    "level_5",
+    "back",
+    "around",
 ];
+// The names above spell out the profile's levels.
+const _: () = assert!(LEVELS == 5);
 
 /// [`features`]' `rival_margin` of a detection that no other category's box overlaps.
 pub const NO_RIVAL: f64 = 1.0;
@@ -56,12 +67,14 @@ pub const RIVAL_IOU: f64 = 0.25;
 /// is above the best of another category's detections whose box overlaps it (`rival`, None:
 /// none overlaps, the margin is [`NO_RIVAL`]). The other features see one category's shapes
 /// alone; the margin says whether another category explains the same surface better (a chair
-/// and a toilet box on one object).
+/// and a toilet box on one object). Then the seen surface's [`Profile`] in the box: `fill`,
+/// `level_1` to `level_5` (bottom first), `back` and `around`.
 pub fn features(
     d: &Detection,
     v: &Verification,
     scale: [f64; 3],
     rival: Option<f64>,
+    seen: &Profile,
 ) -> [f64; FEATURES.len()] {
     let n = (v.agree + v.violate + v.occluded + v.outside).max(1) as f64;
     let frac = |k: usize| k as f64 / n;
@@ -84,6 +97,14 @@ pub fn features(
         d.size[2],
         d.size[0].max(d.size[1]),
         rival.map_or(NO_RIVAL, |r| d.score - r),
+        seen.fill,
+        seen.levels[0],
+        seen.levels[1],
+        seen.levels[2],
+        seen.levels[3],
+        seen.levels[4],
+        seen.back,
+        seen.around,
     ]
 }
 
@@ -429,7 +450,13 @@ mod tests {
             outside: 10,
             unexplained: 5,
         };
-        let f = features(&d, &v, [1.0, 0.5, 2.0], Some(0.5));
+        let seen = Profile {
+            fill: 0.3,
+            levels: [0.1, 0.2, 0.3, 0.4, 0.0],
+            back: 0.6,
+            around: 2.5,
+        };
+        let f = features(&d, &v, [1.0, 0.5, 2.0], Some(0.5), &seen);
         let expect = [
             0.4,
             0.6,
@@ -449,6 +476,14 @@ mod tests {
             0.9,
             0.6,
             -0.5,
+            0.3,
+            0.1,
+            0.2,
+            0.3,
+            0.4,
+            0.0,
+            0.6,
+            2.5,
         ];
         for (k, (a, b)) in f.iter().zip(expect).enumerate() {
             assert!((a - b).abs() < 1e-12, "{}: {a} vs {b}", FEATURES[k]);
