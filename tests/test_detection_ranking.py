@@ -291,3 +291,51 @@ def test_ranking_cli_refuses_unknown_or_repeated_features_before_any_work(tmp_pa
     err = capsys.readouterr().err
     assert needle in err and "known: " + ", ".join(FEATURES) in err
     assert not (tmp_path / "out").exists()
+
+
+def test_profile_features_are_the_seen_surface_in_each_box(chair_room):
+    """The profile features of every detection of a rendered room, recomputed here in numpy
+    from the depth: the frame back-projected every 4th pixel into the upright frame, each point
+    weighted by its pixel's area on the surface, then binned in the detection's box (planes
+    left in, so every seen pixel counts). ``fill``: area inside over the box's largest vertical
+    face; ``level_k``: share of it in the k-th fifth of the height; ``back``: in the object's
+    +y half; ``around``: area within 15 cm of the sides and top, outside, over (inside +
+    0.01 m^2)."""
+    from isa.detection import DetectParams
+    from isa.detection.category_boxes import model_box
+    from isa.detection.multi import CategoryModel, detect
+
+    forest, lib, depth, Rg = chair_room
+    p = replace(DetectParams(), remove_planes=False, nms_iou=1.0, nms_overlap=1.0, max_detections=100_000,
+                nms_order="per_category")
+    dets = detect(depth, KINECT_V1, [CategoryModel("chair", forest, model_box(forest), lib)], gravity=Rg,
+                  params=p).detections
+    assert len(dets) > 5
+    k = KINECT_V1
+    v, u = np.mgrid[0:depth.shape[0]:4, 0:depth.shape[1]:4]
+    z = depth[v, u].astype(float)
+    ok = z > 0
+    u, v, z = u[ok], v[ok], z[ok]
+    pts = (Rg @ np.stack([(u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy, z])).T
+    area = (4 * z / k.fx) * (4 * z / k.fy)
+    filled = 0
+    for d in dets:
+        b = d.box(Rg)
+        c, s = np.cos(b.yaw), np.sin(b.yaw)
+        dx, dy = pts[:, 0] - b.centre[0], pts[:, 1] - b.centre[1]
+        x, y, h = dx * c + dy * s, -dx * s + dy * c, pts[:, 2] - (b.centre[2] - b.size[2] / 2)
+        half = b.size[:2] / 2
+        inside = (np.abs(x) <= half[0]) & (np.abs(y) <= half[1]) & (h >= 0) & (h <= b.size[2])
+        shell = ((np.abs(x) <= half[0] + 0.15) & (np.abs(y) <= half[1] + 0.15) & (h >= 0) & (h <= b.size[2] + 0.15)
+                 & ~inside)
+        a_in = area[inside].sum()
+        level = np.minimum((h[inside] / b.size[2] * 5).astype(int), 4)
+        f = d.meta["features"]
+        assert f["fill"] == pytest.approx(a_in / (max(b.size[:2]) * b.size[2]), rel=1e-9, abs=1e-12)
+        assert f["around"] == pytest.approx(area[shell].sum() / (a_in + 0.01), rel=1e-9, abs=1e-12)
+        if a_in > 0:
+            filled += 1
+            want = np.bincount(level, weights=area[inside], minlength=5) / a_in
+            assert [f[f"level_{i + 1}"] for i in range(5)] == pytest.approx(want, abs=1e-9)
+            assert f["back"] == pytest.approx(area[inside & (y > 0)].sum() / a_in, abs=1e-9)
+    assert filled >= 3  # boxes on the chairs see their surface

@@ -2,7 +2,9 @@
 
 The verification score alone ranks a panel that agrees with any box face (a chair seen from
 behind, a cabinet under a table hypothesis) above a half-hidden real object. The counts it is
-made of, the forest's score, the size fit and the pose tell them apart better. A
+made of, the forest's score, the size fit, the pose and the profile of the surface seen in the
+box (``isa_core::scene::profile``: how it fills the box, rises through its height, leans to its
+back, and carries on round it) tell them apart better. A
 :class:`Ranker` is a logistic model of one category over those features
 (``isa._core.RANK_FEATURES``; ``isa_core::scene::ranking``), applied by the core to the
 detections NMS keeps; a boosted ranker (:func:`fit_boosted_ranker`, scikit-learn's gradient

@@ -84,7 +84,7 @@ pub fn profile(points: &[SeenPoint], b: &UprightBox) -> Profile {
     let bottom = b.centre[2] - b.size[2] / 2.0;
     let top = bottom + b.size[2];
     let (s, c) = b.yaw.sin_cos();
-    let reach = half[0].hypot(half[1]) + SHELL;
+    let reach = (half[0] + SHELL).hypot(half[1] + SHELL);
     let (mut inside, mut shell, mut back) = (0.0, 0.0, 0.0);
     let mut levels = [0.0; LEVELS];
     for q in points {
