@@ -298,9 +298,10 @@ def test_profile_features_are_the_seen_surface_in_each_box(chair_room):
     from the depth: the frame back-projected every 4th pixel into the upright frame, each point
     weighted by its pixel's area on the surface, then binned in the detection's box (planes
     left in, so every seen pixel counts). ``fill``: area inside over the box's largest vertical
-    face; ``level_k``: share of it in the k-th fifth of the height; ``back``: in the object's
-    +y half; ``around``: area within 15 cm of the sides and top, outside, over (inside +
-    0.01 m^2)."""
+    face; ``level_k``: share of it in the k-th fifth of the height; ``back_k``: in that fifth
+    and the object's +y half; ``middle``: over the central half of the length and width;
+    ``span_length`` / ``span_width``: the seen extent along each over the box's; ``around``: area
+    within 15 cm of the sides and top, outside, over (inside + 0.01 m^2)."""
     from isa.detection import DetectParams
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel, detect
@@ -337,5 +338,10 @@ def test_profile_features_are_the_seen_surface_in_each_box(chair_room):
             filled += 1
             want = np.bincount(level, weights=area[inside], minlength=5) / a_in
             assert [f[f"level_{i + 1}"] for i in range(5)] == pytest.approx(want, abs=1e-9)
-            assert f["back"] == pytest.approx(area[inside & (y > 0)].sum() / a_in, abs=1e-9)
+            back = np.bincount(level[y[inside] > 0], weights=area[inside][y[inside] > 0], minlength=5) / a_in
+            assert [f[f"back_{i + 1}"] for i in range(5)] == pytest.approx(back, abs=1e-9)
+            mid = inside & (np.abs(x) <= half[0] / 2) & (np.abs(y) <= half[1] / 2)
+            assert f["middle"] == pytest.approx(area[mid].sum() / a_in, abs=1e-9)
+            assert f["span_length"] == pytest.approx(np.ptp(x[inside]) / b.size[0], abs=1e-9)
+            assert f["span_width"] == pytest.approx(np.ptp(y[inside]) / b.size[1], abs=1e-9)
     assert filled >= 3  # boxes on the chairs see their surface

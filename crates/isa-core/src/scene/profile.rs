@@ -1,6 +1,7 @@
 //! What the observed surface inside a detection's box looks like, whatever the category's shapes
-//! say: how much of the box the seen surface fills, how it rises through the box's height,
-//! whether it leans to the box's back, and how much surface crowds round the box. Ranking reads
+//! say: how much of the box the seen surface fills, how it rises through the box's height and
+//! at what height it leans to the box's back, how much of it is over the box's middle and how
+//! far it spans the box, and how much surface crowds round the box. Ranking reads
 //! these ([`super::ranking::FEATURES`]).
 //!
 //! Why: verification compares a hypothesis with one category's shapes, and a toilet box on a
@@ -65,15 +66,22 @@ pub fn seen_points(
     out
 }
 
-/// A box's profile (see the module docs), every share a fraction of the seen area inside it.
+/// A box's profile (see the module docs), every share a fraction of the seen area inside it
+/// (all 0 when none is seen).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Profile {
     /// Seen area inside the box over its largest vertical face (length or width, times height).
     pub fill: f64,
-    /// Share of the seen area in each fifth of the box's height, bottom first (all 0: none seen).
+    /// Share of the seen area in each fifth of the box's height, bottom first.
     pub levels: [f64; LEVELS],
-    /// Share of the seen area in the box's back half (its object frame's +y; the front is -y).
-    pub back: f64,
+    /// Share of the seen area in each fifth that lies in the box's back half (its object frame's
+    /// +y; the front is -y): a chair's back or a toilet's tank, high at the back.
+    pub back: [f64; LEVELS],
+    /// Share of the seen area over the box's middle (the central half of its length and width).
+    pub middle: f64,
+    /// How far the seen surface spans the box: its extent along the box's length and width over
+    /// the box's.
+    pub span: [f64; 2],
     /// Seen area within [`SHELL`] of the box's sides and top, outside it, over the area inside.
     pub around: f64,
 }
@@ -85,8 +93,9 @@ pub fn profile(points: &[SeenPoint], b: &UprightBox) -> Profile {
     let top = bottom + b.size[2];
     let (s, c) = b.yaw.sin_cos();
     let reach = (half[0] + SHELL).hypot(half[1] + SHELL);
-    let (mut inside, mut shell, mut back) = (0.0, 0.0, 0.0);
-    let mut levels = [0.0; LEVELS];
+    let (mut inside, mut shell, mut middle) = (0.0, 0.0, 0.0);
+    let (mut levels, mut back) = ([0.0; LEVELS], [0.0; LEVELS]);
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for q in points {
         let (dx, dy) = (q.p.x - b.centre[0], q.p.y - b.centre[1]);
         // A quick reject before the rotation: most of a frame is far from any one box.
@@ -96,20 +105,36 @@ pub fn profile(points: &[SeenPoint], b: &UprightBox) -> Profile {
         let (x, y) = (dx * c + dy * s, -dx * s + dy * c);
         if x.abs() <= half[0] && y.abs() <= half[1] && q.p.z <= top {
             inside += q.area;
-            let k = (((q.p.z - bottom) / b.size[2]) * LEVELS as f64) as usize;
-            levels[k.min(LEVELS - 1)] += q.area;
+            let k = ((((q.p.z - bottom) / b.size[2]) * LEVELS as f64) as usize).min(LEVELS - 1);
+            levels[k] += q.area;
             if y > 0.0 {
-                back += q.area;
+                back[k] += q.area;
+            }
+            if x.abs() <= half[0] / 2.0 && y.abs() <= half[1] / 2.0 {
+                middle += q.area;
+            }
+            for (a, v) in [x, y].into_iter().enumerate() {
+                lo[a] = lo[a].min(v);
+                hi[a] = hi[a].max(v);
             }
         } else if x.abs() <= half[0] + SHELL && y.abs() <= half[1] + SHELL {
             shell += q.area;
         }
     }
     let share = |a: f64| if inside > 0.0 { a / inside } else { 0.0 };
+    let span = |a: usize| {
+        if inside > 0.0 {
+            (hi[a] - lo[a]) / b.size[a]
+        } else {
+            0.0
+        }
+    };
     Profile {
         fill: inside / (b.size[0].max(b.size[1]) * b.size[2]).max(1e-12),
         levels: levels.map(share),
-        back: share(back),
+        back: back.map(share),
+        middle: share(middle),
+        span: [span(0), span(1)],
         around: shell / (inside + MIN_AREA),
     }
 }
@@ -154,7 +179,14 @@ mod tests {
         for (a, w) in p.levels.iter().zip(want) {
             assert!((a - w).abs() < 1e-12, "{:?}", p.levels);
         }
-        assert!((p.back - 0.4 / inside).abs() < 1e-12);
+        let back = [0.0, 0.0, 0.1 / inside, 0.0, 0.3 / inside];
+        for (a, w) in p.back.iter().zip(back) {
+            assert!((a - w).abs() < 1e-12, "{:?}", p.back);
+        }
+        // Only (2.0, -0.1) and (1.8, 0.1) lie over the middle (|x| <= 0.25, |y| <= 0.125).
+        assert!((p.middle - 0.2 / inside).abs() < 1e-12);
+        // Seen from x = 1.8 to 2.3 of a 1 m length, y = -0.1 to 0.2 of a 0.5 m width.
+        assert!((p.span[0] - 0.5).abs() < 1e-12 && (p.span[1] - 0.6).abs() < 1e-12);
         assert!((p.around - 0.25 / (inside + MIN_AREA)).abs() < 1e-12);
     }
 
@@ -163,14 +195,15 @@ mod tests {
         // Yaw 90 degrees: the box's +y (its back) is the upright frame's -x.
         let b = boxed(std::f64::consts::FRAC_PI_2);
         let p = profile(&[pt(1.9, 0.0, 0.5, 1.0)], &b);
-        assert!((p.back - 1.0).abs() < 1e-12 && p.around == 0.0);
+        assert!((p.back[2] - 1.0).abs() < 1e-12 && p.around == 0.0);
         let p = profile(&[pt(2.1, 0.0, 0.5, 1.0)], &b);
-        assert_eq!(p.back, 0.0);
+        assert_eq!(p.back, [0.0; LEVELS]);
         // The box is 0.5 m across x now: 0.3 m off its centre along x is in the shell.
         let p = profile(&[pt(2.3, 0.0, 0.5, 1.0)], &b);
         assert_eq!(p.fill, 0.0);
         assert!((p.around - 1.0 / MIN_AREA).abs() < 1e-9);
         assert_eq!(p.levels, [0.0; LEVELS]);
+        assert_eq!((p.middle, p.span), (0.0, [0.0; 2]));
     }
 
     #[test]

@@ -22,7 +22,7 @@ use crate::params::NmsOrder;
 pub const RANKER_FORMAT: u32 = 2;
 
 /// The features a ranker may use, in the order [`features`] returns them.
-pub const FEATURES: [&str; 26] = [
+pub const FEATURES: [&str; 33] = [
     "verify_score",
     "agree",
     "violate",
@@ -47,7 +47,14 @@ pub const FEATURES: [&str; 26] = [
     "level_3",
     "level_4",
     "level_5",
-    "back",
+    "back_1",
+    "back_2",
+    "back_3",
+    "back_4",
+    "back_5",
+    "middle",
+    "span_length",
+    "span_width",
     "around",
 ];
 // The names above spell out the profile's levels.
@@ -68,7 +75,8 @@ pub const RIVAL_IOU: f64 = 0.25;
 /// none overlaps, the margin is [`NO_RIVAL`]). The other features see one category's shapes
 /// alone; the margin says whether another category explains the same surface better (a chair
 /// and a toilet box on one object). Then the seen surface's [`Profile`] in the box: `fill`,
-/// `level_1` to `level_5` (bottom first), `back` and `around`.
+/// `level_1` to `level_5` (bottom first), `back_1` to `back_5`, `middle`, `span_length`,
+/// `span_width` and `around`.
 pub fn features(
     d: &Detection,
     v: &Verification,
@@ -103,7 +111,14 @@ pub fn features(
         seen.levels[2],
         seen.levels[3],
         seen.levels[4],
-        seen.back,
+        seen.back[0],
+        seen.back[1],
+        seen.back[2],
+        seen.back[3],
+        seen.back[4],
+        seen.middle,
+        seen.span[0],
+        seen.span[1],
         seen.around,
     ]
 }
@@ -453,7 +468,9 @@ mod tests {
         let seen = Profile {
             fill: 0.3,
             levels: [0.1, 0.2, 0.3, 0.4, 0.0],
-            back: 0.6,
+            back: [0.0, 0.1, 0.2, 0.3, 0.0],
+            middle: 0.25,
+            span: [0.8, 0.9],
             around: 2.5,
         };
         let f = features(&d, &v, [1.0, 0.5, 2.0], Some(0.5), &seen);
@@ -482,9 +499,17 @@ mod tests {
             0.3,
             0.4,
             0.0,
-            0.6,
+            0.0,
+            0.1,
+            0.2,
+            0.3,
+            0.0,
+            0.25,
+            0.8,
+            0.9,
             2.5,
         ];
+        assert_eq!(expect.len(), FEATURES.len());
         for (k, (a, b)) in f.iter().zip(expect).enumerate() {
             assert!((a - b).abs() < 1e-12, "{}: {a} vs {b}", FEATURES[k]);
         }
