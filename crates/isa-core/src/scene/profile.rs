@@ -221,7 +221,7 @@ mod tests {
         let frame = Frame::new(&depth, cam).unwrap();
         let mut removed = vec![false; 64];
         removed[0] = true;
-        // Camera looking along upright +x... any rotation; here identity (z up = optical axis).
+        // Upright frame = camera frame: the optical axis is "up", so every point is at height 2.
         let rg = Matrix3::identity();
         let pts = seen_points(&frame, &rg, Some(&removed), None, 2);
         assert_eq!(pts.len(), 15);
