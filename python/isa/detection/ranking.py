@@ -147,13 +147,14 @@ def fit_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: S
 
 
 def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, names: Sequence[str] = FEATURES,
-                       n_trees: int = 200, depth: int = 3, learning_rate: float = 0.05, min_leaf: int = 20,
+                       n_trees: int = 200, depth: int = 4, learning_rate: float = 0.05, min_leaf: int = 20,
                        seed: int = 0, fitted_on: str = "") -> Ranker:
     """A ranker whose log-odds are a sum of ``n_trees`` regression trees of ``depth`` levels
     (scikit-learn's ``GradientBoostingClassifier``, log-loss; at least ``min_leaf`` detections
     a leaf), exported as flat node arrays with the learning rate folded into the leaves. The
     defaults won on rooms of other shapes with 1,000-3,500 detections a category
-    (docs/experiments.md, "Rankers fitted on shapes the scored rooms do not hold")."""
+    (docs/experiments.md, "Rankers fitted on shapes the scored rooms do not hold"; depth 4 since
+    the profile features, "Rankers of depth 4")."""
     try:
         from sklearn.ensemble import GradientBoostingClassifier
     except ImportError as e:
