@@ -204,7 +204,11 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     from isa.detection import DetectParams
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel, detect
-    from isa.evaluation.boxes3d import iou_3d
+    from isa.evaluation.boxes3d import footprint_intersection_area, iou_3d
+
+    def inter(a, b):
+        dz = min(a.z_range[1], b.z_range[1]) - max(a.z_range[0], b.z_range[0])
+        return footprint_intersection_area(a, b) * dz if dz > 0 else 0.0
 
     forest, lib, depth, Rg = chair_room
     box = model_box(forest)
@@ -244,18 +248,23 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
         detect(depth, KINECT_V1, [chair_r, toilet_r], gravity=Rg, params=replace(p, nms_order="ranked"))
 
 
-def test_rival_margin_is_the_score_gap_to_the_best_overlapping_box_of_another_category(chair_room):
+def test_rival_margins_are_the_score_gaps_to_the_best_overlapping_holding_and_held_boxes_of_another_category(chair_room):
     """A chair model and a "toilet" model with the same forest and two of the chair shapes, in a
     rendered room with two chairs; NMS off (nothing exceeds IoU or overlap 1) and no rankers, so
     every candidate is a detection with its score before ranking. Each one's ``rival_margin`` is
     its score minus the best score of the other category's detections whose box overlaps it at
-    IoU >= 0.25 (computed here from the boxes), and 1 where none does; a model alone has no
-    rivals."""
+    IoU >= 0.25 (computed here from the boxes), and 1 where none does; ``outer_rival_margin``
+    and ``inner_rival_margin`` the same over a larger box holding at least half of it and a
+    smaller box at least half inside it; a model alone has no rivals."""
     from isa.detection import DetectParams
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel, detect
     from isa.detection.shapes import ShapeLibrary
-    from isa.evaluation.boxes3d import iou_3d
+    from isa.evaluation.boxes3d import footprint_intersection_area, iou_3d
+
+    def inter(a, b):
+        dz = min(a.z_range[1], b.z_range[1]) - max(a.z_range[0], b.z_range[0])
+        return footprint_intersection_area(a, b) * dz if dz > 0 else 0.0
 
     forest, lib, depth, Rg = chair_room
     box = model_box(forest)
@@ -266,16 +275,26 @@ def test_rival_margin_is_the_score_gap_to_the_best_overlapping_box_of_another_ca
     dets = detect(depth, KINECT_V1, [chair, toilet], gravity=Rg, params=p).detections
     assert {d.category for d in dets} == {"chair", "toilet"}
     boxes = [d.box(Rg) for d in dets]
-    gaps = []
+    gaps, covered = [], {"outer_rival_margin": 0, "inner_rival_margin": 0}
     for i, d in enumerate(dets):
         rivals = [e.score for j, e in enumerate(dets)
                   if e.category != d.category and iou_3d(boxes[i], boxes[j]) >= 0.25]
         want = d.score - max(rivals) if rivals else 1.0
         assert d.meta["features"]["rival_margin"] == pytest.approx(want, abs=1e-9)
         gaps += [want] if rivals else []
+        others = [(e, boxes[j], inter(boxes[i], boxes[j])) for j, e in enumerate(dets) if e.category != d.category]
+        v = boxes[i].volume
+        outer = [e.score for e, b, x in others if x > 0 and b.volume >= v and x >= 0.5 * v]
+        inner = [e.score for e, b, x in others if x > 0 and b.volume <= v and x >= 0.5 * b.volume]
+        for name, found in (("outer_rival_margin", outer), ("inner_rival_margin", inner)):
+            want = d.score - max(found) if found else 1.0
+            assert d.meta["features"][name] == pytest.approx(want, abs=1e-6), name
+            covered[name] += bool(found)
     assert gaps and min(gaps) < 0 < max(gaps), gaps  # both sides of the margin are exercised
+    assert min(covered.values()) > 0, covered
     alone = detect(depth, KINECT_V1, [chair], gravity=Rg, params=p).detections
-    assert alone and all(d.meta["features"]["rival_margin"] == 1.0 for d in alone)
+    assert alone and all(d.meta["features"][n] == 1.0 for d in alone
+                         for n in ("rival_margin", "outer_rival_margin", "inner_rival_margin"))
 
 
 @pytest.mark.parametrize("features, needle", [("agree,agreement", "unknown or repeated agreement"),

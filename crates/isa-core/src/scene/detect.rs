@@ -15,11 +15,11 @@ use rayon::prelude::*;
 use serde_json::Value;
 
 use super::gravity::{floor_up, level, rotation_from_up, votes_up, GravitySource};
-use super::nms::{iou, nms_across, nms_within, UprightBox};
+use super::nms::{nms_across, nms_within, UprightBox};
 use super::planes::{find_planes, Planes};
 use super::profile::{profile, seen_points, STRIDE as PROFILE_STRIDE};
 use super::proposals::{footprints, Footprint};
-use super::ranking::{features, Ranker, FEATURES, RIVAL_IOU};
+use super::ranking::{features, Ranker, Rivals, FEATURES};
 use super::refine::{refine_pose, upright_points};
 use super::shapes::{ShapeLibrary, SizeRange};
 use super::verify::{verify_pose, Evidence, Verification};
@@ -734,11 +734,8 @@ fn rank(
                 let t = Vector3::from(d.t);
                 let (v, _) = sc.verify_scaled(&r, &t, lib, s, scale, &counting, None);
                 // Every candidate of the other categories counts, suppressed or not.
-                let rival = (0..dets.len())
-                    .filter(|&j| owner[j].1 != mi && iou(&boxes[i], &boxes[j]) >= RIVAL_IOU)
-                    .map(|j| dets[j].score)
-                    .reduce(f64::max);
-                let f = features(&d, &v, scale, rival, &profile(&seen, &boxes[i]));
+                let rivals = Rivals::of(i, &boxes, |j| owner[j].1 != mi);
+                let f = features(&d, &v, scale, &rivals, &profile(&seen, &boxes[i]));
                 if let Some(rk) = m.ranker {
                     d.score = rk.probability(&f);
                 }

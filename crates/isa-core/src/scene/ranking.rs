@@ -12,6 +12,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::nms::{intersection, UprightBox};
 use super::profile::{Profile, LEVELS};
 use super::verify::Verification;
 use super::Detection;
@@ -22,7 +23,7 @@ use crate::params::NmsOrder;
 pub const RANKER_FORMAT: u32 = 2;
 
 /// The features a ranker may use, in the order [`features`] returns them.
-pub const FEATURES: [&str; 33] = [
+pub const FEATURES: [&str; 35] = [
     "verify_score",
     "agree",
     "violate",
@@ -41,6 +42,8 @@ pub const FEATURES: [&str; 33] = [
     "height",
     "length",
     "rival_margin",
+    "outer_rival_margin",
+    "inner_rival_margin",
     "fill",
     "level_1",
     "level_2",
@@ -65,23 +68,66 @@ pub const NO_RIVAL: f64 = 1.0;
 /// Box IoU (upright boxes) at which another category's detection is a rival: the evaluation's
 /// match threshold, so a rival is a box that would take the same object.
 pub const RIVAL_IOU: f64 = 0.25;
+/// Share of the smaller box's volume inside the larger at which another category's larger box
+/// is an outer rival of a detection (or its smaller box an inner one), whatever their IoU: a
+/// table box on a bed's mattress, a bed box over a table and the floor round it.
+pub const RIVAL_COVER: f64 = 0.5;
+
+/// The best scores (before ranking) of another category's candidates whose boxes meet a
+/// detection's: at IoU >= [`RIVAL_IOU`] (`overlap`); holding at least [`RIVAL_COVER`] of its box
+/// (`outer`); at least [`RIVAL_COVER`] inside its box (`inner`). None where no candidate does.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Rivals {
+    pub overlap: Option<f64>,
+    pub outer: Option<f64>,
+    pub inner: Option<f64>,
+}
+
+impl Rivals {
+    /// The rivals of `boxes[i]` among the `boxes` (scored before ranking) whose `other[j]` is
+    /// true (another category's).
+    pub fn of(i: usize, boxes: &[UprightBox], other: impl Fn(usize) -> bool) -> Self {
+        let best = |a: Option<f64>, s: f64| Some(a.map_or(s, |a: f64| a.max(s)));
+        let mut r = Self::default();
+        let vi = boxes[i].volume();
+        for j in (0..boxes.len()).filter(|&j| j != i && other(j)) {
+            let inter = intersection(&boxes[i], &boxes[j]);
+            if inter <= 0.0 {
+                continue;
+            }
+            let vj = boxes[j].volume();
+            if inter / (vi + vj - inter) >= RIVAL_IOU {
+                r.overlap = best(r.overlap, boxes[j].score);
+            }
+            if vj >= vi && inter >= RIVAL_COVER * vi {
+                r.outer = best(r.outer, boxes[j].score);
+            }
+            if vj <= vi && inter >= RIVAL_COVER * vj {
+                r.inner = best(r.inner, boxes[j].score);
+            }
+        }
+        r
+    }
+}
 
 /// A detection's features (named by [`FEATURES`]): the verification's score and its counts as
 /// fractions of the visible shape cells, `ln(1 + agree)`, the forest's log score and support,
 /// the hypothesis' rank and tilt, whether refinement moved it, its depth (camera z, metres),
 /// the size fit's largest `|ln scale|` (`scale`: the fitted size over the shape's own), and its
 /// height and horizontal length (metres), and `rival_margin`: how far its score (before ranking)
-/// is above the best of another category's detections whose box overlaps it (`rival`, None:
-/// none overlaps, the margin is [`NO_RIVAL`]). The other features see one category's shapes
-/// alone; the margin says whether another category explains the same surface better (a chair
-/// and a toilet box on one object). Then the seen surface's [`Profile`] in the box: `fill`,
+/// is above the best of another category's detections whose box overlaps it (`rivals.overlap`;
+/// None: none overlaps, the margin is [`NO_RIVAL`]), and the same margins over the best larger
+/// box that holds it (`outer_rival_margin`) and the best smaller box inside it
+/// (`inner_rival_margin`). The other features see one category's shapes alone; the margins say
+/// whether another category explains the same surface better (a chair and a toilet box on one
+/// object, a table box on a bed). Then the seen surface's [`Profile`] in the box: `fill`,
 /// `level_1` to `level_5` (bottom first), `back_1` to `back_5`, `middle`, `span_length`,
 /// `span_width` and `around`.
 pub fn features(
     d: &Detection,
     v: &Verification,
     scale: [f64; 3],
-    rival: Option<f64>,
+    rivals: &Rivals,
     seen: &Profile,
 ) -> [f64; FEATURES.len()] {
     let n = (v.agree + v.violate + v.occluded + v.outside).max(1) as f64;
@@ -104,7 +150,9 @@ pub fn features(
         scale.iter().map(|s| s.ln().abs()).fold(0.0, f64::max),
         d.size[2],
         d.size[0].max(d.size[1]),
-        rival.map_or(NO_RIVAL, |r| d.score - r),
+        rivals.overlap.map_or(NO_RIVAL, |r| d.score - r),
+        rivals.outer.map_or(NO_RIVAL, |r| d.score - r),
+        rivals.inner.map_or(NO_RIVAL, |r| d.score - r),
         seen.fill,
         seen.levels[0],
         seen.levels[1],
@@ -439,6 +487,43 @@ mod tests {
     }
 
     #[test]
+    fn rivals_are_the_best_other_category_boxes_by_iou_and_by_cover() {
+        let b = |x: f64, size: [f64; 3], score: f64| UprightBox {
+            centre: [x, 0.0, size[2] / 2.0],
+            size,
+            yaw: 0.0,
+            score,
+        };
+        let boxes = [
+            b(0.0, [1.0, 1.0, 1.0], 0.5), // the detection
+            b(0.1, [1.0, 1.0, 1.0], 0.3), // IoU 0.9/1.1: an overlap rival, and it holds 0.9
+            b(0.0, [3.0, 3.0, 1.0], 0.7), // holds it all; IoU 1/9: outer only
+            b(0.2, [0.4, 0.4, 0.4], 0.9), // wholly inside it; IoU 0.064: inner only
+            b(0.0, [0.4, 0.4, 0.4], 2.0), // inside it too, but its own category
+            b(5.0, [1.0, 1.0, 1.0], 3.0), // far away
+        ];
+        let r = Rivals::of(0, &boxes, |j| j != 4);
+        assert_eq!(r.overlap, Some(0.3));
+        assert_eq!(r.outer, Some(0.7));
+        assert_eq!(r.inner, Some(0.9));
+        // Half of a box's volume inside the other is enough; less is not.
+        let half = [b(0.0, [1.0, 1.0, 1.0], 0.5), b(0.5, [1.0, 1.0, 1.0], 0.1)];
+        // (Equal boxes: each holds the other.) IoU 1/3 makes it an overlap rival as well.
+        let all = Rivals {
+            overlap: Some(0.1),
+            outer: Some(0.1),
+            inner: Some(0.1),
+        };
+        assert_eq!(Rivals::of(0, &half, |_| true), all);
+        let less = [b(0.0, [1.0, 1.0, 1.0], 0.5), b(0.51, [1.0, 1.0, 1.0], 0.1)];
+        let overlap_only = Rivals {
+            overlap: Some(0.1),
+            ..Rivals::default()
+        };
+        assert_eq!(Rivals::of(0, &less, |_| true), overlap_only);
+    }
+
+    #[test]
     fn features_are_fractions_of_the_visible_cells() {
         let d = Detection {
             category: "chair".into(),
@@ -473,7 +558,12 @@ mod tests {
             span: [0.8, 0.9],
             around: 2.5,
         };
-        let f = features(&d, &v, [1.0, 0.5, 2.0], Some(0.5), &seen);
+        let rivals = Rivals {
+            overlap: Some(0.5),
+            outer: None,
+            inner: Some(-0.25),
+        };
+        let f = features(&d, &v, [1.0, 0.5, 2.0], &rivals, &seen);
         let expect = [
             0.4,
             0.6,
@@ -493,6 +583,8 @@ mod tests {
             0.9,
             0.6,
             -0.5,
+            1.0,
+            0.25,
             0.3,
             0.1,
             0.2,
