@@ -204,11 +204,7 @@ def test_nms_orders_per_category_is_each_category_alone_and_ranked_lets_the_prob
     from isa.detection import DetectParams
     from isa.detection.category_boxes import model_box
     from isa.detection.multi import CategoryModel, detect
-    from isa.evaluation.boxes3d import footprint_intersection_area, iou_3d
-
-    def inter(a, b):
-        dz = min(a.z_range[1], b.z_range[1]) - max(a.z_range[0], b.z_range[0])
-        return footprint_intersection_area(a, b) * dz if dz > 0 else 0.0
+    from isa.evaluation.boxes3d import iou_3d
 
     forest, lib, depth, Rg = chair_room
     box = model_box(forest)

@@ -154,7 +154,7 @@ def fit_boosted_ranker(category: str, features: np.ndarray, labels: np.ndarray, 
     a leaf), exported as flat node arrays with the learning rate folded into the leaves. The
     defaults won on rooms of other shapes with 1,000-3,500 detections a category
     (docs/experiments.md, "Rankers fitted on shapes the scored rooms do not hold"; depth 4 since
-    the profile features, "Rankers of depth 4")."""
+    the profile features: "Deeper rankers, more fitting rooms and containment rivals")."""
     try:
         from sklearn.ensemble import GradientBoostingClassifier
     except ImportError as e:
